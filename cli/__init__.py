@@ -1,0 +1,1 @@
+"""The `tetweave` command group (installed as tetweave_codec.cli)."""

@@ -1,0 +1,3 @@
+from tetweave_codec.cli.main import main
+
+main()

@@ -1,0 +1,1 @@
+"""Differentiable offscreen renderer in plain torch (rasterize -> interpolate -> antialias)."""
