@@ -34,3 +34,35 @@ def configure_torch(threads: int = 0, device: str = "auto"):
     if device == "cuda" and not torch.cuda.is_available():
         raise InputError("--device cuda was asked for but no CUDA device is available")
     return torch.device(device)
+
+
+def parse_count(text: str) -> int:
+    """'16k' -> 16384, '2m' -> 2097152, '5000' -> 5000. The suffixes are binary (k = 1024), as point counts in the
+    paper (8K, 16K, 64K) are powers of two. Raises click.BadParameter on anything else."""
+    raw = str(text).strip().lower()
+    factor = 1
+    if raw.endswith("k"):
+        factor, raw = 1024, raw[:-1]
+    elif raw.endswith("m"):
+        factor, raw = 1024 * 1024, raw[:-1]
+    try:
+        value = float(raw) * factor
+    except ValueError:
+        raise click.BadParameter(f"{text!r} is not a count (examples: 8000, 16k, 1.5k)") from None
+    if not value.is_integer() or value <= 0:
+        raise click.BadParameter(f"{text!r} is not a positive whole count")
+    return int(value)
+
+
+class CountType(click.ParamType):
+    """A click parameter type for point counts with k/m suffixes (see `parse_count`)."""
+
+    name = "count"
+
+    def convert(self, value, param, ctx):
+        if isinstance(value, int):
+            return value
+        try:
+            return parse_count(value)
+        except click.BadParameter as exc:
+            self.fail(exc.message, param, ctx)
