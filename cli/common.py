@@ -25,15 +25,11 @@ def configure_torch(threads: int = 0, device: str = "auto"):
     """Apply --threads and resolve --device; returns a torch.device. Imports torch lazily."""
     import torch
 
-    from tetweave_codec.errors import InputError
+    from tetweave_codec.encoder import resolve_device
 
     if threads:
         torch.set_num_threads(threads)
-    if device == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    if device == "cuda" and not torch.cuda.is_available():
-        raise InputError("--device cuda was asked for but no CUDA device is available")
-    return torch.device(device)
+    return resolve_device(device)
 
 
 def parse_count(text: str) -> int:
