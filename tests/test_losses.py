@@ -307,3 +307,9 @@ def test_reconstruction_loss_gradients_flow():
     total, _ = losses.reconstruction_loss(maps, targets)
     total.backward()
     assert all(float(v.grad.abs().sum()) > 0 for v in maps.values())
+
+
+def test_sign_loss_zero_counts_as_outside():
+    s = torch.tensor([0.0, -1.0, 0.0, 2.0])
+    expected = losses.sign_loss(torch.tensor([1e-30, -1.0]), torch.tensor([[0, 1]]))
+    torch.testing.assert_close(losses.sign_loss(s, torch.tensor([[0, 1], [2, 3]])), expected)

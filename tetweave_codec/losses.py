@@ -243,8 +243,9 @@ def fairness_loss(vertices: torch.Tensor, faces: torch.Tensor) -> torch.Tensor:
 def sign_loss(s: torch.Tensor, edges: torch.Tensor) -> torch.Tensor:
     """FlexiCubes' sign-change regularizer (paper §4.2) on grid edges whose base signed distances change sign.
 
-    For each edge (a, b) with (s_a > 0) != (s_b > 0): BCE(sigmoid(s_a), s_b > 0) + BCE(sigmoid(s_b), s_a > 0),
-    with s used directly as the logit as in FlexiCubes' ``sdf_reg_loss``; mean over those edges. It pulls the
+    For each edge (a, b) with (s_a >= 0) != (s_b >= 0) (s >= 0 is outside, as in ``marching_tets``):
+    BCE(sigmoid(s_a), s_b >= 0) + BCE(sigmoid(s_b), s_a >= 0), with s used directly as the logit as in
+    FlexiCubes' ``sdf_reg_loss``; mean over those edges. It pulls the
     two ends towards each other's sign, i.e. penalizes surface area in places that the images do not
     supervise.
 
@@ -258,8 +259,8 @@ def sign_loss(s: torch.Tensor, edges: torch.Tensor) -> torch.Tensor:
         return _zero_like_graph(s)
     sa = s[edges[:, 0]]
     sb = s[edges[:, 1]]
-    outside_a = sa > 0
-    outside_b = sb > 0
+    outside_a = sa >= 0  # s >= 0 is outside, as in marching_tets
+    outside_b = sb >= 0
     change = outside_a != outside_b
     if not bool(change.any()):
         return _zero_like_graph(s)
