@@ -1,0 +1,182 @@
+"""Mesh files in and out: validated loading, normalization to [-0.9, 0.9]^3, atomic writing.
+
+Formats (by file extension, through trimesh): OBJ, PLY, STL, OFF, GLB/GLTF. Scenes (GLB, multi-object OBJ)
+are merged into one triangle mesh with their node transforms applied. Files are read with ``process=False``:
+vertex order, duplicate vertices and degenerate faces are kept as stored (STL files therefore have three
+vertices per triangle).
+
+Every problem with an input file raises `InputError` with a one-line message; every output goes through a
+temporary file in the destination directory and `os.replace`, so a failed write never leaves a half-written
+file.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from tetweave_codec.errors import InputError
+
+# File extensions we read and write, mapped to trimesh's file type names.
+MESH_FORMATS = {".obj": "obj", ".ply": "ply", ".stl": "stl", ".off": "off", ".glb": "glb", ".gltf": "gltf"}
+WRITE_FORMATS = (".obj", ".ply", ".stl", ".off", ".glb")
+
+# normalize() maps the bounding box into [-NORMALIZED_HALF_EXTENT, NORMALIZED_HALF_EXTENT]^3 (paper appendix).
+NORMALIZED_HALF_EXTENT = 0.9
+
+# Decimal places for coordinates in text formats (OBJ, OFF), on top of the digits the mesh's size needs.
+_TEXT_DIGITS = 9
+
+
+def mesh_format(path: str | os.PathLike, *, for_writing: bool = False) -> str:
+    """trimesh file type for `path`'s extension; InputError when unsupported."""
+    ext = Path(path).suffix.lower()
+    allowed = WRITE_FORMATS if for_writing else tuple(MESH_FORMATS)
+    if ext not in allowed:
+        names = ", ".join(e[1:] for e in allowed)
+        what = "output" if for_writing else "mesh"
+        shown = ext or "(no extension)"
+        raise InputError(f"{os.fspath(path)}: unsupported {what} format {shown!r}; use {names}")
+    return MESH_FORMATS[ext]
+
+
+def load_mesh(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
+    """Read a triangle mesh.
+
+    Args:
+        path: mesh file; the format comes from its extension (see MESH_FORMATS).
+    Returns:
+        vertices (V, 3) float64, faces (F, 3) int64 (polygons are triangulated by the reader).
+    Raises:
+        InputError: missing or unreadable file, unsupported format, no triangles, non-finite coordinates,
+            face indices out of range.
+    """
+    name = os.fspath(path)
+    if not os.path.exists(name):
+        raise InputError(f"{name}: no such file")
+    if not os.path.isfile(name):
+        raise InputError(f"{name}: not a regular file")
+    file_type = mesh_format(path)
+    if not os.access(name, os.R_OK):
+        raise InputError(f"{name}: permission denied")
+    import trimesh
+
+    try:
+        scene = trimesh.load_scene(name, file_type=file_type, process=False)
+        mesh = scene.to_mesh()
+        vertices = np.asarray(mesh.vertices, dtype=np.float64).reshape(-1, 3)
+        faces = np.asarray(mesh.faces, dtype=np.int64).reshape(-1, 3)
+    except InputError:
+        raise
+    except Exception as exc:  # trimesh raises anything from ValueError to IndexError on malformed files
+        reason = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise InputError(f"{name}: cannot read as {file_type.upper()} ({reason})") from exc
+    validate_mesh(vertices, faces, name)
+    return vertices, faces
+
+
+def validate_mesh(vertices: np.ndarray, faces: np.ndarray, name: str = "mesh") -> None:
+    """Raise InputError unless `vertices` (V, 3), `faces` (F, 3) form a non-empty, finite, indexable mesh."""
+    if vertices.ndim != 2 or vertices.shape[1] != 3 or faces.ndim != 2 or faces.shape[1] != 3:
+        raise InputError(f"{name}: expected (V, 3) vertices and (F, 3) triangles")
+    if len(faces) == 0:
+        raise InputError(f"{name}: contains no triangles")
+    if not np.isfinite(vertices).all():
+        raise InputError(f"{name}: has non-finite (NaN or infinite) vertex coordinates")
+    if faces.min() < 0 or faces.max() >= len(vertices):
+        raise InputError(f"{name}: face indices out of range (mesh has {len(vertices)} vertices)")
+    used = vertices[np.unique(faces)]
+    if not (used.max(axis=0) - used.min(axis=0)).any():
+        raise InputError(f"{name}: all triangles collapse to a single point")
+
+
+def normalize(vertices: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
+    """Centre the bounding box at the origin and scale uniformly so it fits [-0.9, 0.9]^3.
+
+    Args:
+        vertices: (V, 3) coordinates (V >= 1, finite).
+    Returns:
+        normalized (V, 3) float64, scale (float > 0), offset (3,) float64 with
+        ``vertices == normalized * scale + offset`` (up to rounding); the longest bounding-box side
+        becomes 1.8.
+    Raises:
+        InputError: no vertices, non-finite coordinates or a zero-size bounding box.
+    """
+    v = np.asarray(vertices, dtype=np.float64)
+    if v.ndim != 2 or v.shape[1] != 3 or len(v) == 0:
+        raise InputError("cannot normalize: expected a non-empty (V, 3) vertex array")
+    if not np.isfinite(v).all():
+        raise InputError("cannot normalize: non-finite vertex coordinates")
+    lo, hi = v.min(axis=0), v.max(axis=0)
+    offset = (lo + hi) / 2.0
+    extent = float((hi - lo).max())
+    if not extent > 0:
+        raise InputError("cannot normalize: the mesh has zero size")
+    scale = extent / (2.0 * NORMALIZED_HALF_EXTENT)
+    return (v - offset) / scale, scale, offset
+
+
+def denormalize(vertices: np.ndarray, scale: float, offset: np.ndarray) -> np.ndarray:
+    """Inverse of `normalize`: ``vertices * scale + offset`` (float64)."""
+    return np.asarray(vertices, dtype=np.float64) * float(scale) + np.asarray(offset, dtype=np.float64)
+
+
+def mesh_bytes(vertices: np.ndarray, faces: np.ndarray, file_type: str) -> bytes:
+    """Encode a triangle mesh as `file_type` ("obj", "ply", "stl", "off", "glb"); empty meshes are allowed."""
+    import trimesh
+
+    v = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
+    f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    mesh = trimesh.Trimesh(vertices=v, faces=f, process=False, validate=False)
+    if file_type in ("obj", "off"):
+        # Enough decimals that rounding stays far below the float16 quantization of the decoded geometry.
+        size = float(np.abs(v).max()) if len(v) else 1.0
+        digits = _TEXT_DIGITS + max(0, -int(np.floor(np.log10(size)))) if size > 0 else _TEXT_DIGITS
+        if file_type == "obj" and not len(f):
+            data = "# empty mesh\n"  # trimesh writes bare 'v' / 'f' lines, which readers reject
+        elif file_type == "obj":
+            data = trimesh.exchange.obj.export_obj(mesh, include_normals=False, digits=digits, header=None)
+        else:
+            data = trimesh.exchange.off.export_off(mesh, digits=digits)
+    else:
+        data = mesh.export(file_type=file_type)
+    return data.encode("utf-8") if isinstance(data, str) else bytes(data)
+
+
+def save_mesh(path: str | os.PathLike, vertices: np.ndarray, faces: np.ndarray) -> None:
+    """Write a triangle mesh; format from the extension (obj, ply, stl, off, glb); temp file + rename.
+
+    Raises:
+        InputError: unsupported extension. OSError: the destination cannot be written.
+    """
+    data = mesh_bytes(vertices, faces, mesh_format(path, for_writing=True))
+    write_bytes_atomic(path, data)
+
+
+def write_bytes_atomic(path: str | os.PathLike, data: bytes) -> None:
+    """Write `data` to `path` through a temporary file in the same directory and `os.replace`.
+
+    Either the complete file appears at `path` or, on any error, `path` is left as it was and the temporary
+    file is removed. The new file gets the usual permissions (0666 minus the umask).
+    """
+    target = os.fspath(path)
+    directory = os.path.dirname(os.path.abspath(target))
+    fd, tmp = tempfile.mkstemp(prefix="." + os.path.basename(target) + ".", suffix=".tmp", dir=directory)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+            fh.flush()
+            os.fsync(fh.fileno())
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)
+        os.replace(tmp, target)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except OSError:
+            pass
+        raise
