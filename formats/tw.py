@@ -1,0 +1,209 @@
+"""The `.tw` container, version 1: a TetWeave point cloud (positions, base SDF s, SH coefficients c).
+
+Byte layout (all little-endian; full specification with examples in formats/README.md):
+
+======  ====  =======  ==============================================================================
+offset  size  type     field
+======  ====  =======  ==============================================================================
+0       8     bytes    magic ``89 54 57 56 0D 0A 1A 0A`` (``\\x89TWV\\r\\n\\x1a\\n``)
+8       2     uint16   format version = 1
+10      2     uint16   header size = 64
+12      4     uint32   flags; bit 0: Delaunay backend of the encoder (0 = TetGen, 1 = Qhull); others 0
+16      4     uint32   N, number of points
+20      1     int8     SH degree d in -1..3 (-1: no SH); q = (d + 1)^2 coefficients per point
+21      1     uint8    payload codec (0 = raw float16 arrays; other values reserved for entropy coding)
+22      2     uint16   reserved, 0
+24      8     float64  scale    } original = normalized * scale + offset
+32      24    float64  offset x, y, z
+56      8     uint64   payload size P in bytes (raw: 2 * N * (4 + q))
+64      P     payload  raw: positions float16 (N, 3) row-major, s float16 (N,), c float16 (N, q) row-major
+64 + P  4     uint32   CRC-32 (zlib / ISO-HDLC polynomial) of bytes [0, 64 + P)
+======  ====  =======  ==============================================================================
+
+`unpack` validates everything (magic, version, sizes against the file length, checksum, header fields, finite
+values) and raises `ContainerError` -- and only that -- with a one-line message.
+"""
+
+from __future__ import annotations
+
+import struct
+import zlib
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from tetweave_codec.errors import ContainerError
+from tetweave_codec.sh import SH_DEGREE_MAX, SH_DEGREE_NONE
+
+MAGIC = b"\x89TWV\r\n\x1a\n"
+VERSION = 1
+HEADER_FORMAT = "<8sHHIIbBHd3dQ"
+HEADER_SIZE = struct.calcsize(HEADER_FORMAT)  # 64
+CHECKSUM_SIZE = 4
+CODEC_RAW = 0
+
+FLAG_QHULL = 1 << 0  # the encoder's Delaunay backend was Qhull (else TetGen)
+KNOWN_FLAGS = FLAG_QHULL
+
+MAX_POINTS = 2**32 - 1
+
+assert HEADER_SIZE == 64
+
+
+def backend_flags(backend: str) -> int:
+    """Flags bits recording the Delaunay backend ("tetgen" or "qhull")."""
+    if backend == "tetgen":
+        return 0
+    if backend == "qhull":
+        return FLAG_QHULL
+    raise ValueError(f"unknown Delaunay backend {backend!r}")
+
+
+@dataclass(frozen=True, eq=False)
+class TetWeaveFile:
+    """Contents of a `.tw` file.
+
+    points: (N, 3) float16 positions in the normalized frame.
+    s: (N,) float16 base signed distance (s < 0 inside).
+    c: (N, q) float16 SH coefficients, q = (sh_degree + 1) ** 2 (q = 0 for sh_degree -1).
+    sh_degree: -1..3.
+    scale, offset: float and (3,) float64; ``original = normalized * scale + offset``.
+    flags: bit field, see FLAG_*; `backend` reads the Delaunay backend from it.
+    """
+
+    points: np.ndarray
+    s: np.ndarray
+    c: np.ndarray
+    sh_degree: int
+    scale: float
+    offset: np.ndarray
+    flags: int = 0
+    codec: int = field(default=CODEC_RAW)
+
+    @property
+    def num_points(self) -> int:
+        return int(self.points.shape[0])
+
+    @property
+    def backend(self) -> str:
+        """Delaunay backend the encoder used ("tetgen" or "qhull"); the decoder must use the same."""
+        return "qhull" if self.flags & FLAG_QHULL else "tetgen"
+
+
+def payload_size(num_points: int, sh_degree: int) -> int:
+    """Raw payload size in bytes for N points and an SH degree: 2 * N * (4 + q)."""
+    return 2 * num_points * (4 + (sh_degree + 1) ** 2)
+
+
+def pack(tw: TetWeaveFile) -> bytes:
+    """Serialize a TetWeaveFile (version 1, raw codec). Raises ValueError on inconsistent contents."""
+    degree = int(tw.sh_degree)
+    if not SH_DEGREE_NONE <= degree <= SH_DEGREE_MAX:
+        raise ValueError(f"sh_degree must be in {SH_DEGREE_NONE}..{SH_DEGREE_MAX}, got {degree}")
+    q = (degree + 1) ** 2
+    points = _as_f16(tw.points, "points")
+    s = _as_f16(tw.s, "s")
+    n = points.shape[0] if points.ndim == 2 else -1
+    c = _as_f16(tw.c, "c") if q else np.zeros((max(n, 0), 0), np.float16)
+    if points.ndim != 2 or points.shape[1] != 3:
+        raise ValueError(f"points must be (N, 3), got {points.shape}")
+    if s.shape != (n,):
+        raise ValueError(f"s must be ({n},), got {s.shape}")
+    if c.shape != (n, q):
+        raise ValueError(f"c must be ({n}, {q}) for SH degree {degree}, got {c.shape}")
+    if n > MAX_POINTS:
+        raise ValueError(f"at most {MAX_POINTS} points fit a .tw file")
+    scale = float(tw.scale)
+    offset = np.asarray(tw.offset, dtype=np.float64).reshape(-1)
+    if not (np.isfinite(scale) and scale > 0):
+        raise ValueError(f"scale must be finite and > 0, got {scale}")
+    if offset.shape != (3,) or not np.isfinite(offset).all():
+        raise ValueError("offset must be 3 finite numbers")
+    flags = int(tw.flags)
+    if flags & ~KNOWN_FLAGS or flags < 0:
+        raise ValueError(f"unknown flags 0x{flags:x}")
+    if tw.codec != CODEC_RAW:
+        raise ValueError(f"payload codec {tw.codec} is not implemented (only {CODEC_RAW} = raw)")
+    payload = b"".join(a.astype("<f2").tobytes() for a in (points, s, c))
+    fields = (MAGIC, VERSION, HEADER_SIZE, flags, n, degree, CODEC_RAW, 0, scale, *offset, len(payload))
+    header = struct.pack(HEADER_FORMAT, *fields)
+    body = header + payload
+    return body + struct.pack("<I", zlib.crc32(body))
+
+
+def _as_f16(a, name: str) -> np.ndarray:
+    arr = np.asarray(a)
+    if arr.dtype != np.float16:
+        if not np.issubdtype(arr.dtype, np.floating):
+            raise ValueError(f"{name} must be a float array, got {arr.dtype}")
+        arr = arr.astype(np.float16)
+    if not np.isfinite(arr).all():
+        raise ValueError(f"{name} has values that are not finite in float16 (|x| > 65504 or NaN)")
+    return arr
+
+
+def unpack(data: bytes | bytearray | memoryview) -> TetWeaveFile:
+    """Parse and validate a `.tw` file. Raises ContainerError (only) with a one-line message."""
+    buf = bytes(data)
+    size = len(buf)
+    if size < len(MAGIC):
+        if buf and MAGIC.startswith(buf):
+            raise ContainerError(f"truncated .tw file: {size} bytes")
+        raise ContainerError("not a .tw file (too short for the magic bytes)")
+    if buf[: len(MAGIC)] != MAGIC:
+        raise ContainerError("not a .tw file (wrong magic bytes)")
+    if size < 10:
+        raise ContainerError(f"truncated .tw file: {size} bytes")
+    (version,) = struct.unpack_from("<H", buf, 8)
+    if version != VERSION:
+        raise ContainerError(f"unsupported .tw version {version} (this tetweave reads version {VERSION})")
+    if size < HEADER_SIZE + CHECKSUM_SIZE:
+        raise ContainerError(f"truncated .tw file: {size} bytes, the header alone needs {HEADER_SIZE}")
+    (_, _, header_size, flags, n, degree, codec, reserved, scale, ox, oy, oz, psize) = struct.unpack_from(
+        HEADER_FORMAT, buf, 0
+    )
+    expected = HEADER_SIZE + psize + CHECKSUM_SIZE
+    if size < expected:
+        raise ContainerError(f"truncated .tw file: {size} bytes, the header announces {expected}")
+    if size > expected:
+        raise ContainerError(f"corrupted .tw file: {size - expected} unexpected bytes after the checksum")
+    (stored_crc,) = struct.unpack_from("<I", buf, size - CHECKSUM_SIZE)
+    if zlib.crc32(memoryview(buf)[: size - CHECKSUM_SIZE]) != stored_crc:
+        raise ContainerError("corrupted .tw file: checksum mismatch")
+    # The checksum matched, so the remaining checks catch files written wrongly rather than damaged ones.
+    if header_size != HEADER_SIZE:
+        raise ContainerError(f"invalid .tw header: header size {header_size}, version 1 has {HEADER_SIZE}")
+    if flags & ~KNOWN_FLAGS:
+        raise ContainerError(f"invalid .tw header: unknown flags 0x{flags & ~KNOWN_FLAGS:x}")
+    if not SH_DEGREE_NONE <= degree <= SH_DEGREE_MAX:
+        expected_range = f"{SH_DEGREE_NONE}..{SH_DEGREE_MAX}"
+        raise ContainerError(f"invalid .tw header: SH degree {degree} (expected {expected_range})")
+    if codec != CODEC_RAW:
+        raise ContainerError(f"unsupported .tw payload codec {codec} (this tetweave reads {CODEC_RAW} = raw)")
+    if reserved != 0:
+        raise ContainerError("invalid .tw header: reserved field is not zero")
+    if not (np.isfinite(scale) and scale > 0):
+        raise ContainerError(f"invalid .tw header: scale {scale} (must be finite and > 0)")
+    offset = np.array([ox, oy, oz], dtype=np.float64)
+    if not np.isfinite(offset).all():
+        raise ContainerError("invalid .tw header: non-finite offset")
+    if psize != payload_size(n, degree):
+        raise ContainerError(
+            f"invalid .tw header: payload of {psize} bytes, {n} points at SH degree {degree} need "
+            f"{payload_size(n, degree)}"
+        )
+    q = (degree + 1) ** 2
+    arrays = np.frombuffer(buf, dtype="<f2", count=psize // 2, offset=HEADER_SIZE).astype(np.float16)
+    points = arrays[: 3 * n].reshape(n, 3).copy()
+    s = arrays[3 * n : 4 * n].copy()
+    c = arrays[4 * n :].reshape(n, q).copy()
+    for name, arr in (("point coordinates", points), ("signed distances", s), ("SH coefficients", c)):
+        if not np.isfinite(arr).all():
+            raise ContainerError(f"invalid .tw payload: non-finite {name}")
+    return TetWeaveFile(points, s, c, int(degree), float(scale), offset, int(flags), int(codec))
+
+
+def read_file(path) -> TetWeaveFile:
+    """Read and unpack a `.tw` file (OSError for unreadable paths, ContainerError for bad content)."""
+    with open(path, "rb") as fh:
+        return unpack(fh.read())
