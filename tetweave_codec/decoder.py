@@ -1,0 +1,127 @@
+"""Decoding: `.tw` container -> Delaunay tetrahedralization -> directional marching tets -> triangle mesh.
+
+Everything here is numpy float64 and exactly deterministic for the same input on the same machine: the encoder
+reports the mesh `decode` returns for its own output (call `decode` or `mesh_from_points` with the
+float16-rounded arrays), so "what the encoder printed" and "what the decoder writes" are the same bytes.
+
+The surface is closed where the inside region reaches the convex hull of the points (cap triangles on the
+hull, see `marching_tets`), so every decoded mesh is watertight and 2-manifold, or empty (all s of one sign).
+"""
+
+from __future__ import annotations
+
+import time
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from tetweave_codec.delaunay import available_backends, tetrahedralize
+from tetweave_codec.marching_tets import marching_tets_numpy
+from tetweave_codec.sh import check_degree, num_coeffs
+
+
+class DecodeWarning(UserWarning):
+    """Decoding works but may not reproduce the encoder's mesh exactly (its Delaunay backend is missing)."""
+
+
+@dataclass
+class DecodeResult:
+    """Output of `decode_detailed`.
+
+    vertices: (V, 3) float64 in the input mesh's frame. faces: (F, 3) int64, outward.
+    container: the parsed file (formats.tw.TetWeaveFile).
+    backend: Delaunay backend actually used.
+    seconds: wall time per stage: "unpack", "delaunay", "marching_tets".
+    num_tets: size of the tetrahedralization.
+    """
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    container: object
+    backend: str
+    seconds: dict[str, float] = field(default_factory=dict)
+    num_tets: int = 0
+
+
+def mesh_from_points(
+    points: np.ndarray,
+    s: np.ndarray,
+    c: np.ndarray | None,
+    sh_degree: int,
+    backend: str = "auto",
+) -> tuple[np.ndarray, np.ndarray]:
+    """Extract the TetWeave surface of a point cloud (in the frame of `points`).
+
+    Args:
+        points: (N, 3) positions (float16-rounded values for a faithful preview of a `.tw` file).
+        s: (N,) base signed distance, s < 0 inside.
+        c: (N, q) SH coefficients, q = (sh_degree + 1) ** 2; None or (N, 0) when sh_degree is -1.
+        sh_degree: -1..3.
+        backend: Delaunay backend, "auto", "tetgen" or "qhull" (must match the container's flags).
+    Returns:
+        vertices (V, 3) float64, faces (F, 3) int64 (outward; both empty when s has one sign only).
+    """
+    result = _extract(points, s, c, sh_degree, backend, {})
+    return result[0], result[1]
+
+
+def _extract(points, s, c, sh_degree, backend, seconds):
+    check_degree(sh_degree)
+    pts = np.asarray(points, dtype=np.float64)
+    s = np.asarray(s, dtype=np.float64).reshape(-1)
+    q = num_coeffs(sh_degree)
+    if pts.ndim != 2 or pts.shape[1] != 3 or s.shape != (len(pts),):
+        raise ValueError(f"expected points (N, 3) and s (N,), got {pts.shape} and {s.shape}")
+    if c is None or q == 0:
+        coeffs = None
+    else:
+        coeffs = np.asarray(c, dtype=np.float64)
+        if coeffs.shape != (len(pts), q):
+            raise ValueError(f"c must be ({len(pts)}, {q}) for SH degree {sh_degree}, got {coeffs.shape}")
+    t0 = time.perf_counter()
+    tz = tetrahedralize(pts, backend)
+    t1 = time.perf_counter()
+    mt = marching_tets_numpy(pts, tz.tets, s, coeffs, tz.hull_faces)
+    t2 = time.perf_counter()
+    seconds["delaunay"] = t1 - t0
+    seconds["marching_tets"] = t2 - t1
+    return mt.vertices, mt.faces, tz
+
+
+def decode(data: bytes, backend: str | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Decode a `.tw` file to a triangle mesh in the original input's frame.
+
+    Args:
+        data: the file's bytes.
+        backend: None (the backend recorded in the file) or an explicit override.
+    Returns:
+        vertices (V, 3) float64, faces (F, 3) int64.
+    Raises:
+        ContainerError: malformed, truncated, corrupted or unsupported file.
+    """
+    result = decode_detailed(data, backend)
+    return result.vertices, result.faces
+
+
+def decode_detailed(data: bytes, backend: str | None = None) -> DecodeResult:
+    """`decode` plus the parsed container, the backend used and per-stage timings."""
+    from tetweave_codec.formats.tw import unpack
+
+    seconds: dict[str, float] = {}
+    t0 = time.perf_counter()
+    tw = unpack(data)
+    seconds["unpack"] = time.perf_counter() - t0
+    if backend is None:
+        backend = tw.backend
+        if backend not in available_backends():
+            warnings.warn(
+                f"this file was triangulated with {backend}, which is not installed; decoding with "
+                f"{available_backends()[0]} (the mesh may differ where points are cospherical)",
+                DecodeWarning,
+                stacklevel=2,
+            )
+            backend = available_backends()[0]
+    vertices, faces, tz = _extract(tw.points, tw.s, tw.c, tw.sh_degree, backend, seconds)
+    vertices = vertices * float(tw.scale) + tw.offset
+    return DecodeResult(vertices, faces, tw, tz.backend, seconds, len(tz.tets))
