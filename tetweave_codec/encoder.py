@@ -85,7 +85,7 @@ def encode(vertices: np.ndarray, faces: np.ndarray, *, points: int = DEFAULT_POI
     Deterministic: the same input, options, seed, device and thread count give the same bytes.
     """
     from tetweave_codec.decoder import decode
-    from tetweave_codec.formats.tw import TetWeaveFile, pack
+    from tetweave_codec.formats.tw import TetWeaveFile, backend_flags, pack
     from tetweave_codec.meshio import normalize
 
     v, f = _validate(vertices, faces)
@@ -103,7 +103,8 @@ def encode(vertices: np.ndarray, faces: np.ndarray, *, points: int = DEFAULT_POI
 
     t0 = time.perf_counter()
     data = pack(TetWeaveFile(points=result.points, s=result.s, c=result.c, sh_degree=sh_degree,
-                             scale=float(scale), offset=np.asarray(offset, dtype=np.float64)))
+                             scale=float(scale), offset=np.asarray(offset, dtype=np.float64),
+                             flags=backend_flags(result.backend)))
     out_v, out_f = decode(data)
     seconds = dict(result.stage_seconds)
     seconds["extract"] = time.perf_counter() - t0

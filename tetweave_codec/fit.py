@@ -23,6 +23,7 @@ import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
+from typing import NamedTuple
 
 import numpy as np
 import torch
@@ -30,7 +31,7 @@ from torch import Tensor
 
 from tetweave_codec import losses
 from tetweave_codec.active import active_mask, one_ring_mask
-from tetweave_codec.delaunay import delaunay
+from tetweave_codec.delaunay import resolve_backend, tetrahedralize
 from tetweave_codec.errors import TetweaveError
 from tetweave_codec.initialize import initial_state, random_state
 from tetweave_codec.marching_tets import marching_tets
@@ -102,6 +103,7 @@ class FitConfig:
     weights: Weights = field(default_factory=Weights)
     lr: LearningRates = field(default_factory=LearningRates)
     init: str = "sdf"  # "sdf" (from the input) or "random" (the paper's ball)
+    backend: str = "auto"  # Delaunay backend, see delaunay.resolve_backend
     seed: int = 0
 
 
@@ -117,6 +119,7 @@ class FitResult:
     s: np.ndarray
     c: np.ndarray
     sh_degree: int
+    backend: str  # Delaunay backend of the final triangulation; the decoder must use the same
     stage_seconds: dict[str, float]
     history: list[tuple[str, int, float]]
 
@@ -146,16 +149,28 @@ class _Params:
                 self.c.detach().cpu().numpy())
 
 
-def _triangulate(points: Tensor) -> Tensor:
-    """Delaunay of the current points, (T,4) long on their device."""
-    tets = delaunay(points.detach().cpu().numpy().astype(np.float64))
-    return torch.from_numpy(tets).to(points.device)
+class _Grid(NamedTuple):
+    """A Delaunay triangulation on the points' device: tets (T,4) long, hull (H,3) long outward hull faces."""
+
+    tets: Tensor
+    hull: Tensor
 
 
-def _regularized_loss(params: _Params, tets: Tensor, targets: Targets, views: Tensor, schedule: Schedule,
+def _triangulate(points: Tensor, backend: str) -> _Grid:
+    """Delaunay of the current points with the decoder's backend."""
+    tri = tetrahedralize(points.detach().cpu().numpy().astype(np.float64), backend)
+    return _Grid(torch.from_numpy(tri.tets).to(points.device), torch.from_numpy(tri.hull_faces).to(points.device))
+
+
+def _extract(params: _Params, grid: _Grid):
+    """The mesh exactly as the decoder extracts it (hull caps included), differentiable."""
+    return marching_tets(params.points, grid.tets, params.s, params.c, hull_faces=grid.hull)
+
+
+def _regularized_loss(params: _Params, grid: _Grid, targets: Targets, views: Tensor, schedule: Schedule,
                       weights: Weights, with_grid_terms: bool) -> tuple[Tensor, dict[str, float]]:
     """Total loss of one iteration and its parts (floats, for logging)."""
-    mt = marching_tets(params.points, tets, params.s, params.c)
+    mt = _extract(params, grid)
     parts: dict[str, float] = {}
     total = losses.sign_loss(params.s, mt.edges) * weights.sign
     parts["sign"] = float(total)
@@ -171,7 +186,7 @@ def _regularized_loss(params: _Params, tets: Tensor, targets: Targets, views: Te
             total = total + fair
             parts["fairness"] = float(fair)
     if with_grid_terms:
-        odt = losses.odt_loss(params.points, tets) * weights.odt
+        odt = losses.odt_loss(params.points, grid.tets) * weights.odt
         total = total + odt
         parts["odt"] = float(odt)
     parts["total"] = float(total)
@@ -184,14 +199,14 @@ def _render(vertices: Tensor, faces: Tensor, cameras, size: int):
     return render_maps(vertices, faces, cameras, size)
 
 
-def _importance(params: _Params, tets: Tensor, targets: Targets, schedule: Schedule,
+def _importance(params: _Params, grid: _Grid, targets: Targets, schedule: Schedule,
                 generator: torch.Generator) -> tuple[Tensor, Tensor, Tensor] | None:
     """Voxel importance from the normal-map error of the current mesh (paper eq. importance).
 
     Returns (grid (R,R,R), bbox_min (3,), bbox_max (3,)) or None when the current mesh is empty.
     """
     with torch.no_grad():
-        mt = marching_tets(params.points, tets, params.s, params.c)
+        mt = _extract(params, grid)
         if mt.faces.shape[0] == 0:
             return None
         n = min(IMPORTANCE_VIEWS, len(targets))
@@ -209,22 +224,22 @@ def _importance(params: _Params, tets: Tensor, targets: Targets, schedule: Sched
         return grid, lo, hi
 
 
-def _resample(params: _Params, tets: Tensor, targets: Targets, n_target: int, schedule: Schedule,
+def _resample(params: _Params, grid: _Grid, targets: Targets, n_target: int, schedule: Schedule,
               generator: torch.Generator, lr: LearningRates) -> _Params:
     """Relocate passive points and grow the set to `n_target` by error-driven sampling (paper §4.3-4.4)."""
     with torch.no_grad():
-        imp = _importance(params, tets, targets, schedule, generator)
+        imp = _importance(params, grid, targets, schedule, generator)
         if imp is None:
             return params
         grid, lo, hi = imp
-        keep = one_ring_mask(tets, active_mask(tets, params.s))
+        keep = one_ring_mask(grid.tets, active_mask(grid.tets, params.s))
         n_target = max(n_target, int(keep.sum()))
-        points, s, c = resample(params.points, params.s, params.c, tets, keep, grid, (lo, hi), n_target, generator)
+        points, s, c = resample(params.points, params.s, params.c, grid.tets, keep, grid, (lo, hi), n_target, generator)
         points = points.clamp(-POSITION_BOUND, POSITION_BOUND)
     return _Params(points.cpu().numpy(), s.cpu().numpy(), c.cpu().numpy(), params.points.device, lr)
 
 
-def _main_stage(params: _Params, targets: Targets, config: FitConfig, generator: torch.Generator,
+def _main_stage(params: _Params, targets: Targets, config: FitConfig, backend: str, generator: torch.Generator,
                 progress: ProgressFn, history: list) -> _Params:
     sch = config.schedule
     n_events = len(sch.resample_at)
@@ -235,15 +250,15 @@ def _main_stage(params: _Params, targets: Targets, config: FitConfig, generator:
         it = int(round(frac * sch.main_iters / sch.delaunay_every)) * sch.delaunay_every
         if 0 < it < sch.main_iters:
             events[it] = n_start + math.ceil((config.points - n_start) * (k + 1) / n_events)
-    tets = None
+    grid = None
     for it in range(sch.main_iters):
-        if it % sch.delaunay_every == 0 or tets is None:
-            tets = _triangulate(params.points)
+        if it % sch.delaunay_every == 0 or grid is None:
+            grid = _triangulate(params.points, backend)
             if it in events:
-                params = _resample(params, tets, targets, events[it], sch, generator, config.lr)
-                tets = _triangulate(params.points)
+                params = _resample(params, grid, targets, events[it], sch, generator, config.lr)
+                grid = _triangulate(params.points, backend)
         views = torch.randperm(len(targets), generator=generator)[:sch.views_per_iter].to(params.points.device)
-        loss, parts = _regularized_loss(params, tets, targets, views, sch, config.weights, with_grid_terms=True)
+        loss, parts = _regularized_loss(params, grid, targets, views, sch, config.weights, with_grid_terms=True)
         loss.backward()
         params.opt_sc.step()
         params.opt_sc.zero_grad(set_to_none=True)
@@ -258,14 +273,14 @@ def _main_stage(params: _Params, targets: Targets, config: FitConfig, generator:
     return params
 
 
-def _finalize_points(params: _Params) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _finalize_points(params: _Params, backend: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Keep the active points, round them to float16 and drop float16 collisions (first occurrence wins).
 
     Returns points16 (N,3) float16, s (N,) float32, c (N,q) float32.
     """
-    tets = _triangulate(params.points)
+    grid = _triangulate(params.points, backend)
     with torch.no_grad():
-        keep = active_mask(tets, params.s).cpu().numpy()
+        keep = active_mask(grid.tets, params.s).cpu().numpy()
     points, s, c = params.numpy()
     points16 = points[keep].astype(np.float16)
     _, first = np.unique(points16.view(np.uint16).reshape(-1, 3), axis=0, return_index=True)
@@ -274,15 +289,15 @@ def _finalize_points(params: _Params) -> tuple[np.ndarray, np.ndarray, np.ndarra
 
 
 def _late_stage(points16: np.ndarray, s: np.ndarray, c: np.ndarray, targets: Targets, config: FitConfig,
-                device: torch.device, generator: torch.Generator, progress: ProgressFn,
+                backend: str, device: torch.device, generator: torch.Generator, progress: ProgressFn,
                 history: list) -> tuple[np.ndarray, np.ndarray]:
     """Optimize s and c on the final (float16) points and their one triangulation; returns float32 s, c."""
     sch = config.schedule
     params = _Params(points16.astype(np.float32), s, c, device, config.lr, optimize_points=False)
-    tets = _triangulate(params.points)
+    grid = _triangulate(params.points, backend)
     for it in range(sch.late_iters):
         views = torch.randperm(len(targets), generator=generator)[:sch.views_per_iter].to(device)
-        loss, parts = _regularized_loss(params, tets, targets, views, sch, config.weights, with_grid_terms=False)
+        loss, parts = _regularized_loss(params, grid, targets, views, sch, config.weights, with_grid_terms=False)
         loss.backward()
         params.opt_sc.step()
         params.opt_sc.zero_grad(set_to_none=True)
@@ -315,6 +330,7 @@ def fit(vertices: np.ndarray, faces: np.ndarray, config: FitConfig, device: torc
     times: dict[str, float] = {}
     history: list[tuple[str, int, float]] = []
     generator = torch.Generator().manual_seed(config.seed)
+    backend = resolve_backend(config.backend)
 
     t0 = time.perf_counter()
     progress("targets", 0, 1, {})
@@ -334,20 +350,20 @@ def fit(vertices: np.ndarray, faces: np.ndarray, config: FitConfig, device: torc
     times["init"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    params = _main_stage(params, targets, config, generator, progress, history)
+    params = _main_stage(params, targets, config, backend, generator, progress, history)
     times["main"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    points16, s, c = _finalize_points(params)
+    points16, s, c = _finalize_points(params, backend)
     if len(points16) < 4:
         raise TetweaveError("the fit produced no surface (is the input a closed or nearly closed shape?)")
     times["finalize"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    s, c = _late_stage(points16, s, c, targets, config, device, generator, progress, history)
+    s, c = _late_stage(points16, s, c, targets, config, backend, device, generator, progress, history)
     times["late"] = time.perf_counter() - t0
     s16, c16 = _round_sc(s, c)
-    return FitResult(points16, s16, c16, config.sh_degree, times, history)
+    return FitResult(points16, s16, c16, config.sh_degree, backend, times, history)
 
 
 def schedule_for(quality: str, iters: int | None = None) -> Schedule:
