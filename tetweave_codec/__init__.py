@@ -16,3 +16,18 @@ __version__ = "0.1.0"
 _root = _os.path.dirname(_os.path.dirname(_os.path.abspath(__file__)))
 if _os.path.isfile(_os.path.join(_root, "pyproject.toml")) and _os.path.isdir(_os.path.join(_root, "formats")):
     __path__.append(_root)  # type: ignore[name-defined]  # noqa: F821
+
+__all__ = ["decode", "encode", "__version__"]
+
+
+def __getattr__(name: str):
+    # encode/decode pull in torch and scipy: load them on first use, not on `import tetweave_codec`.
+    if name == "encode":
+        from tetweave_codec.encoder import encode
+
+        return encode
+    if name == "decode":
+        from tetweave_codec.decoder import decode
+
+        return decode
+    raise AttributeError(f"module 'tetweave_codec' has no attribute {name!r}")
