@@ -1,1 +1,27 @@
 """Differentiable offscreen renderer in plain torch (rasterize -> interpolate -> antialias)."""
+
+from .antialias import antialias, opposite_vertices
+from .cameras import Cameras, fibonacci_cameras, look_at_cameras, random_cameras
+from .interpolate import face_normals, perspective_barycentrics, vertex_normals
+from .maps import RenderMaps, render_maps
+from .rasterize import Fragments, rasterize
+from .shading import image_grid, save_png, shade
+
+__all__ = [
+    "Cameras",
+    "Fragments",
+    "RenderMaps",
+    "antialias",
+    "face_normals",
+    "fibonacci_cameras",
+    "image_grid",
+    "look_at_cameras",
+    "opposite_vertices",
+    "perspective_barycentrics",
+    "random_cameras",
+    "rasterize",
+    "render_maps",
+    "save_png",
+    "shade",
+    "vertex_normals",
+]
