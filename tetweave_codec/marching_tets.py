@@ -34,7 +34,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from tetweave_codec.sh import degree_from_num_coeffs, sh_basis, sh_parity
+from tetweave_codec.sh import degree_from_num_coeffs, sh_basis_terms, sh_parity
 
 # Local edges of a tet as pairs of local vertex indices: edge e connects TET_EDGES[e, 0] and TET_EDGES[e, 1].
 TET_EDGES = np.array([[0, 1], [0, 2], [0, 3], [1, 2], [1, 3], [2, 3]], dtype=np.int64)
@@ -206,16 +206,19 @@ def marching_tets_numpy(
     code = occ[:, 0] + 2 * occ[:, 1].astype(np.int64) + 4 * occ[:, 2] + 8 * occ[:, 3]
     tet_idx = np.flatnonzero((code > 0) & (code < 15))
     code = code[tet_idx]
-    ends = tets[tet_idx][:, TET_EDGES]  # (Tv, 6, 2)
-    lo = np.minimum(ends[..., 0], ends[..., 1])
-    hi = np.maximum(ends[..., 0], ends[..., 1])
+    mixed = tets[tet_idx]
+    key = np.empty((len(mixed), 6), dtype=np.int64)
+    for e, (a, b) in enumerate(TET_EDGES.tolist()):
+        va, vb = mixed[:, a], mixed[:, b]
+        key[:, e] = np.minimum(va, vb) * n + np.maximum(va, vb)
     active = ACTIVE_EDGE_TABLE[code]
-    keys, inverse = np.unique((lo * n + hi)[active], return_inverse=True)
+    keys, inverse = _unique_inverse(key[active], n)
     slot = np.full(active.shape, -1, dtype=np.int64)
-    slot[active] = inverse.reshape(-1)
+    slot[active] = inverse
     tri = TRIANGLE_TABLE[code]
     has = tri[..., 0] >= 0
-    faces = np.take_along_axis(slot, tri.reshape(-1, 6), axis=1).reshape(-1, 2, 3)[has]
+    # Flat indices into slot: tet row * 6 + local edge.
+    faces = slot.ravel()[(np.arange(len(slot), dtype=np.int64) * 6)[:, None, None] + tri][has]
     face_tets = np.broadcast_to(tet_idx[:, None], has.shape)[has]
     lo, hi = np.divmod(keys, n) if n else (keys, keys)
     lo_in = inside[lo]
@@ -235,6 +238,27 @@ def marching_tets_numpy(
         np.ascontiguousarray(edges, dtype=np.int64),
         np.ascontiguousarray(face_tets, dtype=np.int64),
     )
+
+
+def _unique_inverse(keys: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """``np.unique(keys, return_inverse=True)`` for non-negative keys < n * n, about twice as fast.
+
+    Packs each key with its position into one int64 so that a plain (SIMD) sort replaces numpy's argsort.
+    """
+    m = len(keys)
+    index_bits = max(int(m - 1).bit_length(), 1)
+    key_bits = max(int(n * n - 1).bit_length(), 1)
+    if m == 0 or key_bits + index_bits > 63:
+        return np.unique(keys, return_inverse=True)
+    packed = (keys << index_bits) | np.arange(m, dtype=np.int64)
+    packed.sort()
+    sorted_keys = packed >> index_bits
+    first = np.empty(m, dtype=bool)
+    first[0] = True
+    np.not_equal(sorted_keys[1:], sorted_keys[:-1], out=first[1:])
+    inverse = np.empty(m, dtype=np.int64)
+    inverse[packed & ((1 << index_bits) - 1)] = np.cumsum(first) - 1
+    return sorted_keys[first], inverse
 
 
 def _caps_numpy(hull_faces, inside, keys, n, num_vertices):
@@ -275,12 +299,16 @@ def _edge_vertices(points, s, c, i, j):
         d = p_j - p_i
         length = sqrt((d * d).sum(-1, keepdims=True))
         d = d / where(length > 0, length, length * 0 + 1)
-        basis = sh_basis(d, degree)  # (V, q) at dir(i -> j); dir(j -> i) = -d flips odd degrees
-        parity = sh_parity(degree)
-        if is_torch:
-            parity = torch.as_tensor(parity, dtype=basis.dtype, device=basis.device)
-        s_i = (1 + tanh((basis * c[i]).sum(-1))) * s_i
-        s_j = (1 + tanh((basis * parity * c[j]).sum(-1))) * s_j
+        c_i, c_j = c[i], c[j]
+        # SH of i at dir(i -> j) = d and of j at dir(j -> i) = -d, which flips the sign of odd degrees.
+        sh_i = d[:, 0] * 0
+        sh_j = d[:, 0] * 0
+        terms, signs = sh_basis_terms(d, degree), sh_parity(degree).tolist()
+        for k, (term, sign) in enumerate(zip(terms, signs, strict=True)):
+            sh_i = sh_i + term * c_i[:, k]
+            sh_j = sh_j + term * c_j[:, k] if sign > 0 else sh_j - term * c_j[:, k]
+        s_i = (1 + tanh(sh_i)) * s_i
+        s_j = (1 + tanh(sh_j)) * s_j
     denom = s_j - s_i
     ok = denom != 0
     # s_hat_i underflows to 0 only for saturated tanh; if both ends do, fall back to the midpoint.

@@ -97,30 +97,18 @@ def _is_torch(a: Any) -> bool:
     return type(a).__module__.startswith("torch")
 
 
-def sh_basis(dirs: Any, degree: int) -> Any:
-    """Real SH basis at unit directions.
-
-    Args:
-        dirs: (..., 3) unit vectors, torch tensor or numpy array.
-        degree: -1..3.
-    Returns:
-        (..., q) basis values, q = num_coeffs(degree), same array kind and dtype as `dirs`.
-    """
-    q = num_coeffs(degree)
+def sh_basis_terms(dirs: Any, degree: int) -> list:
+    """The q basis functions at unit directions as a list of (...,) arrays (see `sh_basis`)."""
+    num_coeffs(degree)
+    if degree < 0:
+        return []
     x, y, z = dirs[..., 0], dirs[..., 1], dirs[..., 2]
     if _is_torch(dirs):
         import torch
 
-        if q == 0:
-            return dirs.new_zeros(dirs.shape[:-1] + (0,))
-        stack = torch.stack
-        const = torch.full_like(x, SH_C0)
+        terms = [torch.full_like(x, SH_C0)]
     else:
-        if q == 0:
-            return np.zeros(dirs.shape[:-1] + (0,), dtype=dirs.dtype)
-        stack = np.stack
-        const = np.full_like(x, SH_C0)
-    terms = [const]
+        terms = [np.full_like(x, SH_C0)]
     if degree >= 1:
         terms += [SH_C1 * y, SH_C1 * z, SH_C1 * x]
     if degree >= 2:
@@ -142,7 +130,24 @@ def sh_basis(dirs: Any, degree: int) -> Any:
             SH_C3[4] * z * (xx - yy),
             SH_C3[0] * x * (xx - 3.0 * yy),
         ]
-    return stack(terms, -1)
+    return terms
+
+
+def sh_basis(dirs: Any, degree: int) -> Any:
+    """Real SH basis at unit directions.
+
+    Args:
+        dirs: (..., 3) unit vectors, torch tensor or numpy array.
+        degree: -1..3.
+    Returns:
+        (..., q) basis values, q = num_coeffs(degree), same array kind and dtype as `dirs`.
+    """
+    terms = sh_basis_terms(dirs, degree)
+    if _is_torch(dirs):
+        import torch
+
+        return torch.stack(terms, -1) if terms else dirs.new_zeros(dirs.shape[:-1] + (0,))
+    return np.stack(terms, -1) if terms else np.zeros(dirs.shape[:-1] + (0,), dtype=dirs.dtype)
 
 
 def sh_eval(dirs: Any, coeffs: Any) -> Any:
@@ -152,7 +157,10 @@ def sh_eval(dirs: Any, coeffs: Any) -> Any:
         dirs: (..., 3) unit vectors.
         coeffs: (..., q) coefficients (q a perfect square, 0 allowed), same array kind as `dirs`.
     Returns:
-        (...,) values; zeros when q == 0.
+        (...,) values, accumulated in coefficient order (zeros when q == 0).
     """
     degree = degree_from_num_coeffs(int(coeffs.shape[-1]))
-    return (sh_basis(dirs, degree) * coeffs).sum(-1)
+    value = dirs[..., 0] * 0
+    for k, term in enumerate(sh_basis_terms(dirs, degree)):
+        value = value + term * coeffs[..., k]
+    return value
