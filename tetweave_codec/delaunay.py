@@ -181,6 +181,11 @@ def _qhull(pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return np.zeros((0, 4), np.int64), np.zeros((0, 3), np.int64)
     tets = tri.simplices.astype(np.int64)
     neighbors = tri.neighbors.astype(np.int64)
+    if len(tri.coplanar):
+        # Qhull keeps an arbitrary one of several coincident points; refer to the first, as with TetGen.
+        keys = pts.view(np.dtype((np.void, 24))).ravel()
+        _, first, inverse = np.unique(keys, return_index=True, return_inverse=True)
+        tets = first[inverse.reshape(-1)][tets]
     signs = orientation(pts, tets)
     flip = signs < 0
     tets[flip] = tets[flip][:, [1, 0, 2, 3]]

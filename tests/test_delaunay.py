@@ -1,0 +1,192 @@
+"""Delaunay tetrahedralization: validity, orientation, hull faces, duplicates, degenerate inputs, backends."""
+
+from __future__ import annotations
+
+import sys
+import time
+
+import numpy as np
+import pytest
+from scipy.spatial import ConvexHull
+
+from tetweave_codec import delaunay as dl
+from tetweave_codec.delaunay import TET_OUTWARD_FACES, delaunay, orientation, resolve_backend, tetrahedralize
+
+BACKENDS = dl.available_backends()
+
+
+def _volumes(points, tets):
+    a, b, c, d = (points[tets[:, k]] for k in range(4))
+    return np.einsum("ij,ij->i", b - a, np.cross(c - a, d - a)) / 6.0
+
+
+def _directed_faces(tets):
+    """Outward faces of all tets, each rotated so its smallest index comes first: (4T, 3)."""
+    f = tets[:, TET_OUTWARD_FACES].reshape(-1, 3)
+    r = np.argmin(f, axis=1)
+    idx = (r[:, None] + np.arange(3)) % 3
+    return np.take_along_axis(f, idx, axis=1)
+
+
+def assert_valid_complex(points, tets, hull):
+    """Positive tets; a face is shared by at most two tets, oppositely oriented; hull = unpaired faces."""
+    assert tets.dtype == np.int64 and tets.shape[1] == 4
+    assert np.all(orientation(points, tets) >= 0)
+    directed = _directed_faces(tets)
+    keys = {tuple(f) for f in directed.tolist()}
+    assert len(keys) == len(directed), "a face has the same orientation in two tets"
+    unpaired = [f for f in keys if (f[0], f[2], f[1]) not in keys]
+    hull_keys = {tuple(f) for f in _directed_faces_of(hull).tolist()}
+    assert hull_keys == set(unpaired)
+
+
+def _directed_faces_of(tris):
+    r = np.argmin(tris, axis=1)
+    idx = (r[:, None] + np.arange(3)) % 3
+    return np.take_along_axis(tris, idx, axis=1)
+
+
+def _lattice(k: int = 5) -> np.ndarray:
+    g = np.arange(k) / (k - 1.0)
+    return np.stack(np.meshgrid(g, g, g, indexing="ij"), -1).reshape(-1, 3)
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_random_points_valid_and_fill_the_hull(backend):
+    pts = np.random.default_rng(0).uniform(-1, 1, (500, 3))
+    tz = tetrahedralize(pts, backend)
+    assert tz.backend == backend
+    assert_valid_complex(pts, tz.tets, tz.hull_faces)
+    vols = _volumes(pts, tz.tets)
+    assert np.all(vols > 0)
+    hull = ConvexHull(pts)
+    assert vols.sum() == pytest.approx(hull.volume, rel=1e-12)
+    assert len(tz.hull_faces) == len(hull.simplices)
+    assert set(np.unique(tz.tets)) == set(range(len(pts)))
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_empty_circumspheres(backend):
+    pts = np.random.default_rng(1).normal(size=(150, 3))
+    tets = delaunay(pts, backend)
+    a = pts[tets[:, 0]]
+    m = np.stack([pts[tets[:, k]] - a for k in (1, 2, 3)], 1)  # (T, 3, 3)
+    rhs = 0.5 * (m**2).sum(-1)
+    centre = a + np.linalg.solve(m, rhs[..., None])[..., 0]
+    radius2 = ((centre - a) ** 2).sum(-1)
+    dist2 = ((pts[None, :, :] - centre[:, None, :]) ** 2).sum(-1)
+    dist2[np.arange(len(tets))[:, None], tets] = np.inf
+    assert np.all(dist2 >= radius2[:, None] * (1 - 1e-9))
+
+
+def test_backends_agree_in_general_position():
+    if "tetgen" not in BACKENDS:
+        pytest.skip("tetgenpy not installed")
+    pts = np.random.default_rng(2).uniform(-1, 1, (400, 3))
+    a = {tuple(t) for t in np.sort(delaunay(pts, "tetgen"), 1).tolist()}
+    b = {tuple(t) for t in np.sort(delaunay(pts, "qhull"), 1).tolist()}
+    assert a == b
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_cospherical_lattice_is_consistently_oriented(backend):
+    """A lattice is maximally degenerate: Qhull emits flat tets there, which must still be oriented."""
+    pts = _lattice(5)
+    tz = tetrahedralize(pts, backend)
+    assert_valid_complex(pts, tz.tets, tz.hull_faces)
+    assert _volumes(pts, tz.tets).sum() == pytest.approx(1.0, abs=1e-12)
+    if backend == "qhull":
+        assert np.any(orientation(pts, tz.tets) == 0), "expected Qhull to produce flat tets on a lattice"
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_exact_duplicates_map_to_first_occurrence(backend):
+    rng = np.random.default_rng(3)
+    base = rng.uniform(-1, 1, (300, 3))
+    pts = np.concatenate([base, base[:100], base[50:80]])
+    perm = rng.permutation(len(pts))
+    pts = pts[perm]
+    tz = tetrahedralize(pts, backend)
+    assert tz.tets.max() < len(pts)
+    used = np.unique(tz.tets)
+    assert len(used) == 300
+    _, first = np.unique(pts, axis=0, return_index=True)
+    assert set(used.tolist()) == set(first.tolist())
+    assert_valid_complex(pts, tz.tets, tz.hull_faces)
+    # Same tets as on the deduplicated input, mapped back.
+    ref = tetrahedralize(pts[np.sort(first)], backend)
+    mapped = np.sort(first)[ref.tets]
+    assert {tuple(t) for t in np.sort(mapped, 1).tolist()} == {tuple(t) for t in np.sort(tz.tets, 1).tolist()}
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_near_duplicates_neither_stall_nor_crash(backend):
+    rng = np.random.default_rng(4)
+    base = rng.uniform(-1, 1, (2000, 3))
+    pts = np.concatenate([base, base[:500] + rng.normal(size=(500, 3)) * 1e-12, base[500:700] + 1e-15])
+    start = time.perf_counter()
+    tz = tetrahedralize(pts, backend)
+    assert time.perf_counter() - start < 20
+    assert len(tz.tets) > 0 and tz.tets.max() < len(pts)
+    assert np.all(orientation(pts, tz.tets) >= 0)
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+@pytest.mark.parametrize(
+    "pts",
+    [
+        np.zeros((0, 3)),
+        np.random.default_rng(5).uniform(size=(1, 3)),
+        np.random.default_rng(5).uniform(size=(2, 3)),
+        np.random.default_rng(5).uniform(size=(3, 3)),
+        np.repeat([[0.1, 0.2, 0.3]], 6, axis=0),
+        np.c_[np.random.default_rng(6).uniform(size=(40, 2)), np.zeros(40)],  # coplanar
+        np.c_[np.random.default_rng(7).uniform(size=40), np.zeros((40, 2))],  # collinear
+        np.concatenate([np.eye(3), np.eye(3), np.eye(3)]),  # 3 distinct points, repeated
+    ],
+    ids=["empty", "one", "two", "three", "identical", "coplanar", "collinear", "three-distinct"],
+)
+def test_degenerate_inputs_give_no_tets(backend, pts):
+    tz = tetrahedralize(pts, backend)
+    assert tz.tets.shape == (0, 4) and tz.hull_faces.shape == (0, 3)
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_deterministic(backend):
+    pts = np.random.default_rng(8).normal(size=(3000, 3)).astype(np.float16).astype(np.float64)
+    a, b = tetrahedralize(pts, backend), tetrahedralize(pts, backend)
+    assert np.array_equal(a.tets, b.tets) and np.array_equal(a.hull_faces, b.hull_faces)
+
+
+def test_single_tet_orientation_fixed():
+    pts = np.array([[0, 0, 0], [0, 1, 0], [1, 0, 0], [0, 0, 1.0]])
+    for backend in BACKENDS:
+        tets = delaunay(pts, backend)
+        assert tets.shape == (1, 4) and _volumes(pts, tets)[0] > 0
+
+
+def test_orientation_is_exact_where_float_is_not():
+    # Nearly coplanar: float64 cannot tell the sign, the exact fallback can.
+    eps = 2.0**-60
+    pts = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1.0 / 3, 1.0 / 3, eps], [1.0 / 3, 1.0 / 3, -eps]])
+    signs = orientation(pts, np.array([[0, 1, 2, 3], [0, 1, 2, 4], [0, 2, 1, 3], [0, 1, 2, 2]]))
+    assert signs.tolist() == [1, -1, -1, 0]
+
+
+def test_input_validation():
+    with pytest.raises(ValueError):
+        delaunay(np.zeros((5, 2)))
+    with pytest.raises(ValueError):
+        delaunay(np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, np.nan]]))
+    with pytest.raises(ValueError):
+        resolve_backend("cgal")
+
+
+def test_qhull_fallback_without_tetgenpy(monkeypatch):
+    monkeypatch.setitem(sys.modules, "tetgenpy", None)  # makes `import tetgenpy` raise ImportError
+    assert dl.available_backends() == ("qhull",)
+    assert resolve_backend("auto") == "qhull"
+    with pytest.raises(ImportError):
+        resolve_backend("tetgen")
+    pts = np.random.default_rng(9).uniform(size=(50, 3))
+    assert tetrahedralize(pts).backend == "qhull"
