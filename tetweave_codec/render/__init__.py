@@ -1,6 +1,6 @@
 """Differentiable offscreen renderer in plain torch (rasterize -> interpolate -> antialias)."""
 
-from .antialias import antialias, opposite_vertices
+from .antialias import MeshEdges, antialias, mesh_edges
 from .cameras import Cameras, fibonacci_cameras, look_at_cameras, random_cameras
 from .interpolate import face_normals, perspective_barycentrics, vertex_normals
 from .maps import RenderMaps, render_maps
@@ -10,13 +10,14 @@ from .shading import image_grid, save_png, shade
 __all__ = [
     "Cameras",
     "Fragments",
+    "MeshEdges",
     "RenderMaps",
     "antialias",
     "face_normals",
     "fibonacci_cameras",
     "image_grid",
     "look_at_cameras",
-    "opposite_vertices",
+    "mesh_edges",
     "perspective_barycentrics",
     "random_cameras",
     "rasterize",
