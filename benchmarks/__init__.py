@@ -1,1 +1,4 @@
-"""Benchmarks: the batch comparison against Draco (`tetweave bench`) and speed scripts (installed as tetweave_codec.benchmarks)."""
+"""Benchmarks: the batch comparison against Draco (`tetweave bench`) and speed scripts.
+
+Installed as tetweave_codec.benchmarks.
+"""

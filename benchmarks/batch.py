@@ -1,0 +1,232 @@
+"""The batch runner of `tetweave bench`: every mesh x every method -> encode, decode, time, measure.
+
+One result row per (mesh, method, setting), a plain dict with the keys of `COLUMNS`, plus one "input" row per
+mesh (raw size and the input's own triangle quality and topology, for reference). A failure of one method on
+one mesh (an exception anywhere in encode, decode or the metrics) is recorded in that row's ``error`` column
+and the batch goes on. Decoded meshes are handed to `on_mesh` one mesh at a time (for the pictures), never all
+kept at once.
+"""
+
+from __future__ import annotations
+
+import re
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from tetweave_codec.benchmarks.methods import Method
+
+from tetweave_codec.metrics import MetricOptions, evaluate, mesh_report, prepare_reference
+
+# Result columns in CSV order. Distances are in the input's normalized frame (see tetweave_codec.metrics).
+ID_COLUMNS = ["mesh", "family", "curve", "setting"]
+PARAM_COLUMNS = ["quantization_bits", "keep_fraction", "points", "sh_degree", "points_stored"]
+SIZE_COLUMNS = ["bytes", "bits_per_vertex", "encode_s", "decode_s", "metrics_s"]
+FIDELITY_COLUMNS = [
+    "chamfer",
+    "hausdorff",
+    "normal_consistency",
+    "f1@0.001",
+    "f1@0.005",
+    "edge_chamfer",
+    "edge_f1",
+    "inaccurate_normals_pct",
+]
+QUALITY_COLUMNS = [
+    "aspect_ratio_gt4_pct",
+    "radius_ratio_gt4_pct",
+    "small_angle_lt10_pct",
+    "self_intersect_pct",
+    "watertight",
+    "two_manifold",
+    "oriented",
+    "manifold3d_ok",
+    "boundary_edges",
+    "nonmanifold_edges",
+    "n_vertices",
+    "n_faces",
+]
+COLUMNS = ID_COLUMNS + PARAM_COLUMNS + SIZE_COLUMNS + FIDELITY_COLUMNS + QUALITY_COLUMNS + ["error"]
+
+INPUT_FAMILY = "input"
+ProgressFn = Callable[[str], None]
+
+
+@dataclass
+class MeshResult:
+    """Everything measured on one input mesh.
+
+    name: label of the mesh (file stem, made unique). vertices (V,3), faces (F,3): the input. rows: result
+    rows (the input row first). decoded: method name -> decoded (vertices, faces), successes only.
+    """
+
+    name: str
+    vertices: np.ndarray
+    faces: np.ndarray
+    rows: list[dict] = field(default_factory=list)
+    decoded: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+
+
+def find_meshes(path: str | Path) -> list[Path]:
+    """The mesh files of a folder (by extension, sorted, not recursive), or [path] for a single file.
+
+    Raises InputError when there is nothing to benchmark.
+    """
+    from tetweave_codec.errors import InputError
+    from tetweave_codec.meshio import MESH_FORMATS
+
+    path = Path(path)
+    if path.is_file():
+        return [path]
+    if not path.is_dir():
+        raise InputError(f"{path}: no such file or folder")
+    found = sorted(p for p in path.iterdir() if p.is_file() and p.suffix.lower() in MESH_FORMATS)
+    if not found:
+        raise InputError(f"{path}: no mesh files ({', '.join(sorted(MESH_FORMATS))})")
+    return found
+
+
+def mesh_labels(paths: Sequence[Path]) -> list[str]:
+    """Unique, file-name-safe labels: the stem, or stem_ext when two files share a stem."""
+    stems = [re.sub(r"[^A-Za-z0-9._+-]+", "_", p.stem) for p in paths]
+    labels = []
+    for path, stem in zip(paths, stems, strict=True):
+        labels.append(stem if stems.count(stem) == 1 else f"{stem}_{path.suffix.lstrip('.').lower()}")
+    return labels
+
+
+def _referenced_vertices(faces: np.ndarray) -> int:
+    used = np.zeros(int(faces.max()) + 1 if len(faces) else 0, dtype=bool)
+    used[faces.reshape(-1)] = True
+    return int(used.sum())
+
+
+def _empty_row(name: str, method: Method | None) -> dict:
+    row = dict.fromkeys(COLUMNS, "")
+    row["mesh"] = name
+    if method is None:
+        row.update(family=INPUT_FAMILY, curve=INPUT_FAMILY, setting="raw float32")
+    else:
+        row.update(family=method.family, curve=method.curve, setting=method.setting)
+        row.update(method.params())
+    return row
+
+
+def _error_text(exc: BaseException) -> str:
+    text = " ".join(str(exc).split()) or type(exc).__name__
+    return f"{type(exc).__name__}: {text}"[:300]
+
+
+def input_row(name: str, vertices: np.ndarray, faces: np.ndarray, options: MetricOptions) -> dict:
+    """The reference row of an input: raw size (float32 xyz + uint32 indices) and its own quality."""
+    row = _empty_row(name, None)
+    n_in = _referenced_vertices(faces)
+    row["bytes"] = 12 * n_in + 12 * len(faces)
+    row["bits_per_vertex"] = 8.0 * row["bytes"] / n_in
+    t0 = time.perf_counter()
+    report = mesh_report(vertices, faces, options)
+    row["metrics_s"] = time.perf_counter() - t0
+    row.update({k: v for k, v in report.items() if k in COLUMNS})
+    return row
+
+
+def run_method(
+    name: str, method: Method, vertices: np.ndarray, faces: np.ndarray, reference, options: MetricOptions
+) -> tuple[dict, tuple[np.ndarray, np.ndarray] | None]:
+    """Encode, decode and measure one method on one mesh; returns (row, decoded mesh or None on failure)."""
+    row = _empty_row(name, method)
+    n_in = _referenced_vertices(faces)
+    try:
+        t0 = time.perf_counter()
+        data = method.encode(vertices, faces)
+        row["encode_s"] = time.perf_counter() - t0
+        row["bytes"] = len(data)
+        row["bits_per_vertex"] = 8.0 * len(data) / n_in
+        row.update(method.info(data))
+        t0 = time.perf_counter()
+        v_out, f_out = method.decode(data)
+        row["decode_s"] = time.perf_counter() - t0
+        row["n_vertices"], row["n_faces"] = _referenced_vertices(f_out), len(f_out)
+        t0 = time.perf_counter()
+        metrics = evaluate(reference, v_out, f_out, options)
+        row["metrics_s"] = time.perf_counter() - t0
+        row.update({k: v for k, v in metrics.items() if k in COLUMNS})
+        return row, (v_out, f_out)
+    except Exception as exc:  # one failure must not stop the batch; it is reported in the row
+        row["error"] = _error_text(exc)
+        return row, None
+
+
+def run_mesh(
+    name: str,
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    methods: Sequence[Method],
+    options: MetricOptions | None = None,
+    progress: ProgressFn | None = None,
+) -> MeshResult:
+    """All methods on one (already loaded) mesh."""
+    opts = options or MetricOptions()
+    say = progress or (lambda _msg: None)
+    result = MeshResult(name, vertices, faces)
+    try:
+        result.rows.append(input_row(name, vertices, faces, opts))
+        reference = prepare_reference(vertices, faces, opts)
+    except Exception as exc:  # e.g. a zero-area input: nothing can be measured against it
+        error = _error_text(exc)
+        say(f"{name}: cannot measure against this input: {error}")
+        result.rows = [_empty_row(name, m) | {"error": f"input: {error}"} for m in [None, *methods]]
+        return result
+    for i, method in enumerate(methods, 1):
+        say(f"{name}: [{i}/{len(methods)}] {method.name} ...")
+        row, decoded = run_method(name, method, vertices, faces, reference, opts)
+        result.rows.append(row)
+        if decoded is not None:
+            result.decoded[method.name] = decoded
+            say(
+                f"{name}: [{i}/{len(methods)}] {method.name}: {row['bytes']:,} bytes, "
+                f"CD {row['chamfer']:.3g}, {row['n_faces']:,} faces "
+                f"(encode {row['encode_s']:.2f}s, decode {row['decode_s']:.2f}s, "
+                f"metrics {row['metrics_s']:.1f}s)"
+            )
+        else:
+            say(f"{name}: [{i}/{len(methods)}] {method.name}: FAILED: {row['error']}")
+    return result
+
+
+def run_batch(
+    paths: Sequence[str | Path],
+    methods: Sequence[Method],
+    options: MetricOptions | None = None,
+    progress: ProgressFn | None = None,
+    on_mesh: Callable[[MeshResult], None] | None = None,
+) -> list[dict]:
+    """Run every method on every mesh file; returns all rows (input rows included).
+
+    A mesh that cannot be loaded gets one row per method carrying the load error. `on_mesh` is called after
+    each mesh with its MeshResult (decoded meshes included), e.g. to write pictures and partial results.
+    """
+    from tetweave_codec.meshio import load_mesh
+
+    say = progress or (lambda _msg: None)
+    paths = [Path(p) for p in paths]
+    rows: list[dict] = []
+    for k, (path, name) in enumerate(zip(paths, mesh_labels(paths), strict=True), 1):
+        say(f"mesh {k}/{len(paths)}: {path}")
+        try:
+            vertices, faces = load_mesh(path)
+        except Exception as exc:
+            error = _error_text(exc)
+            say(f"{name}: cannot load: {error}")
+            for method in methods:
+                row = _empty_row(name, method)
+                row["error"] = f"load: {error}"
+                rows.append(row)
+            continue
+        result = run_mesh(name, vertices, faces, methods, options, progress)
+        rows.extend(result.rows)
+        if on_mesh is not None:
+            on_mesh(result)
+    return rows

@@ -1,0 +1,123 @@
+"""The interface every compression method of `tetweave bench` implements, and the tetweave method itself.
+
+A method turns a mesh into bytes and bytes back into a mesh; the benchmark times both, counts the bytes and
+measures the decoded mesh against the input. Baselines (Draco, decimation + Draco) live in `baselines.py`.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from collections.abc import Callable
+
+import numpy as np
+
+FAMILIES = ("draco", "decimate+draco", "tetweave")
+
+
+class Method(ABC):
+    """One compression method at one setting.
+
+    family: the method family ("draco", "decimate+draco", "tetweave"); the summary compares families.
+    setting: short label of the parameters within the family, e.g. "q11" or "16384 pts sh1".
+    curve: label of the rate-distortion curve this setting belongs to (settings that vary along one axis).
+    """
+
+    family: str = ""
+
+    @property
+    @abstractmethod
+    def setting(self) -> str: ...
+
+    @property
+    def curve(self) -> str:
+        return self.family
+
+    @property
+    def name(self) -> str:
+        return f"{self.family} {self.setting}"
+
+    def params(self) -> dict:
+        """Parameters as CSV columns (quantization_bits, keep_fraction, points, sh_degree)."""
+        return {}
+
+    @abstractmethod
+    def encode(self, vertices: np.ndarray, faces: np.ndarray) -> bytes:
+        """Compress a mesh, vertices (V,3) float64 and faces (F,3) int64, in the input's own frame."""
+
+    @abstractmethod
+    def decode(self, data: bytes) -> tuple[np.ndarray, np.ndarray]:
+        """Rebuild (vertices (V,3) float64, faces (F,3) int64), in the input's frame, from `encode`'s
+        bytes."""
+
+    def info(self, data: bytes) -> dict:
+        """Extra CSV columns read back from the compressed bytes (e.g. points stored)."""
+        return {}
+
+    def __repr__(self) -> str:
+        return f"<{type(self).__name__} {self.name}>"
+
+
+class TetweaveMethod(Method):
+    """tetweave: fit with `tetweave_codec.encoder.encode`, rebuild with `tetweave_codec.decoder.decode`.
+
+    points: grid points during the fit; sh_degree 0..3; quality/iters/device/seed as in `tetweave encode`.
+    progress: optional fit progress callback, passed to the encoder unchanged.
+    """
+
+    family = "tetweave"
+
+    def __init__(
+        self,
+        points: int,
+        sh_degree: int = 1,
+        quality: str = "default",
+        iters: int | None = None,
+        device: str = "auto",
+        seed: int = 0,
+        progress: Callable | None = None,
+    ) -> None:
+        self.points = int(points)
+        self.sh_degree = int(sh_degree)
+        self.quality = quality
+        self.iters = iters
+        self.device = device
+        self.seed = seed
+        self.progress = progress
+
+    @property
+    def setting(self) -> str:
+        return f"{self.points} pts sh{self.sh_degree}"
+
+    @property
+    def curve(self) -> str:
+        return f"tetweave sh{self.sh_degree}"
+
+    def params(self) -> dict:
+        return {"points": self.points, "sh_degree": self.sh_degree}
+
+    def encode(self, vertices: np.ndarray, faces: np.ndarray) -> bytes:
+        from tetweave_codec.encoder import encode
+
+        result = encode(
+            vertices,
+            faces,
+            points=self.points,
+            sh_degree=self.sh_degree,
+            quality=self.quality,
+            iters=self.iters,
+            device=self.device,
+            seed=self.seed,
+            progress=self.progress,
+            measure=False,  # the benchmark measures the decoded mesh itself
+        )
+        return result.data
+
+    def decode(self, data: bytes) -> tuple[np.ndarray, np.ndarray]:
+        from tetweave_codec.decoder import decode
+
+        return decode(data)
+
+    def info(self, data: bytes) -> dict:
+        from tetweave_codec.formats.tw import unpack
+
+        return {"points_stored": int(len(unpack(data).s))}

@@ -1,0 +1,419 @@
+"""Reports of `tetweave bench`: results.csv, summary.md, rate-distortion plots and side-by-side pictures.
+
+Matched-error verdict. Each family's settings give points (Chamfer distance, bytes). Its *front* is the Pareto
+subset (no other setting of the family is both smaller and more accurate), sorted by Chamfer distance. A
+family's size at an error e is read off its front by linear interpolation of log(bytes) against log(Chamfer);
+outside the front's Chamfer range it is unknown (never extrapolated). The verdict compares, at the Chamfer
+distance of each setting of the focus family (tetweave when present, else decimate+Draco), the sizes of all
+families.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+from tetweave_codec.benchmarks.batch import COLUMNS, INPUT_FAMILY, MeshResult
+
+from tetweave_codec.meshio import write_bytes_atomic
+
+FOCUS_ORDER = ("tetweave", "decimate+draco", "draco")  # the family the verdict is about, first present wins
+PICTURE_FAMILIES = ("draco", "decimate+draco", "tetweave")
+CURVE_STYLE = {
+    "draco": ("tab:blue", "o"),
+    "decimate+draco": ("tab:orange", "s"),
+    "tetweave": ("tab:green", "^"),
+}
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Rows
+# ----------------------------------------------------------------------------------------------------------
+
+
+def _num(value) -> float | None:
+    """A finite float from a row cell (number or CSV text), else None."""
+    if value is None or value == "" or isinstance(value, bool):
+        return None
+    try:
+        x = float(value)
+    except (TypeError, ValueError):
+        return None
+    return x if math.isfinite(x) else None
+
+
+def ok_rows(rows: Sequence[dict], family: str | None = None) -> list[dict]:
+    """Successful method rows (not the input row), optionally of one family."""
+    return [
+        r
+        for r in rows
+        if r["family"] != INPUT_FAMILY
+        and not r.get("error")
+        and _num(r.get("chamfer")) is not None
+        and _num(r.get("bytes")) is not None
+        and (family is None or r["family"] == family)
+    ]
+
+
+def _format_cell(value) -> str:
+    if isinstance(value, bool | np.bool_):
+        return "yes" if value else "no"
+    if isinstance(value, int | np.integer):
+        return str(int(value))
+    if isinstance(value, float | np.floating):
+        return f"{float(value):.6g}"
+    return "" if value is None else str(value)
+
+
+def write_csv(rows: Sequence[dict], path: str | Path) -> None:
+    """One line per row, columns `batch.COLUMNS`; booleans as yes/no, floats to 6 significant digits."""
+    buf = io.StringIO()
+    writer = csv.DictWriter(buf, fieldnames=COLUMNS, extrasaction="ignore", lineterminator="\n")
+    writer.writeheader()
+    for row in rows:
+        writer.writerow({k: _format_cell(row.get(k, "")) for k in COLUMNS})
+    write_bytes_atomic(path, buf.getvalue().encode("utf-8"))
+
+
+def read_csv(path: str | Path) -> list[dict]:
+    """Rows of a results.csv (values as text; the report functions accept text or numbers)."""
+    with open(path, newline="", encoding="utf-8") as f:
+        return list(csv.DictReader(f))
+
+
+def rows_by_mesh(rows: Sequence[dict]) -> dict[str, list[dict]]:
+    out: dict[str, list[dict]] = {}
+    for row in rows:
+        out.setdefault(row["mesh"], []).append(row)
+    return out
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Rate-distortion fronts and the matched-error verdict
+# ----------------------------------------------------------------------------------------------------------
+
+
+def pareto_front(points: Sequence[tuple[float, float]]) -> list[tuple[float, float]]:
+    """Non-dominated (error, bytes) points with error > 0, sorted by error (bytes then strictly decrease)."""
+    pts = sorted((e, b) for e, b in points if e > 0 and b > 0)
+    front: list[tuple[float, float]] = []
+    for e, b in pts:
+        if not front or b < front[-1][1]:
+            if front and e == front[-1][0]:
+                continue
+            front.append((e, b))
+    return front
+
+
+def bytes_at(front: Sequence[tuple[float, float]], error: float) -> float | None:
+    """Size on a front at `error`, log-log interpolated; None outside the front's error range."""
+    if not front or error <= 0:
+        return None
+    errors = np.log([e for e, _ in front])
+    sizes = np.log([b for _, b in front])
+    x = math.log(error)
+    tol = 1e-9
+    if x < errors[0] - tol or x > errors[-1] + tol:
+        return None
+    return float(math.exp(np.interp(x, errors, sizes)))
+
+
+def family_fronts(rows: Sequence[dict]) -> dict[str, list[tuple[float, float]]]:
+    fronts = {}
+    for family in FOCUS_ORDER:
+        pts = [(_num(r["chamfer"]), _num(r["bytes"])) for r in ok_rows(rows, family)]
+        if pts:
+            fronts[family] = pareto_front(pts)
+    return fronts
+
+
+def verdict(rows: Sequence[dict]) -> list[str]:
+    """Markdown bullets: at each focus setting's error, every family's interpolated size and the smallest."""
+    fronts = family_fronts(rows)
+    focus = next((f for f in FOCUS_ORDER if f in fronts), None)
+    if focus is None:
+        return ["- no method succeeded on this mesh"]
+    others = [f for f in FOCUS_ORDER if f in fronts and f != focus]
+    if not others:
+        return [f"- only {focus} succeeded; nothing to compare with"]
+    lines = []
+    wins = compared = 0
+    for row in sorted(ok_rows(rows, focus), key=lambda r: _num(r["bytes"])):
+        error, size = _num(row["chamfer"]), _num(row["bytes"])
+        sizes = {f: bytes_at(fronts[f], error) for f in others}
+        known = {f: b for f, b in sizes.items() if b is not None}
+        head = f"- at CD {error:.3g} ({focus} {row['setting']}, {size:,.0f} B):"
+        if not known:
+            ranges = ", ".join(f"{f} {fronts[f][0][0]:.2g}-{fronts[f][-1][0]:.2g}" for f in others)
+            lines.append(f"{head} outside the other methods' Chamfer ranges ({ranges})")
+            continue
+        compared += 1
+        parts = [f"{f} ≈ {b:,.0f} B" for f, b in known.items()]
+        best_other, best_size = min(known.items(), key=lambda kv: kv[1])
+        if size <= best_size:
+            wins += 1
+            tail = f"smallest: **{focus}** ({best_size / size:.2f}× smaller than {best_other})"
+        else:
+            tail = f"smallest: **{best_other}** ({size / best_size:.2f}× smaller than {focus})"
+        lines.append(f"{head} {', '.join(parts)} → {tail}")
+    outside = len(lines) - compared
+    note = f"; {outside} of its settings fall outside the others' error range" if outside else ""
+    lines.insert(0, f"- **{focus} is smallest at {wins} of {compared} matched-error points**{note}")
+    return lines
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Markdown summary
+# ----------------------------------------------------------------------------------------------------------
+
+SUMMARY_COLUMNS = [
+    ("method", "family"),
+    ("setting", "setting"),
+    ("bytes", "bytes"),
+    ("bits/vertex", "bits_per_vertex"),
+    ("CD", "chamfer"),
+    ("HD", "hausdorff"),
+    ("NC", "normal_consistency"),
+    ("F1@.001", "f1@0.001"),
+    ("F1@.005", "f1@0.005"),
+    ("ECD", "edge_chamfer"),
+    ("EF1", "edge_f1"),
+    ("IN>5° %", "inaccurate_normals_pct"),
+    ("AR>4 %", "aspect_ratio_gt4_pct"),
+    ("RR>4 %", "radius_ratio_gt4_pct"),
+    ("SA<10° %", "small_angle_lt10_pct"),
+    ("SI %", "self_intersect_pct"),
+    ("watertight", "watertight"),
+    ("2-manifold", "two_manifold"),
+    ("V", "n_vertices"),
+    ("F", "n_faces"),
+    ("enc s", "encode_s"),
+    ("dec s", "decode_s"),
+]
+
+
+def _md_cell(key: str, value) -> str:
+    if value in ("", None):
+        return ""
+    if key in ("watertight", "two_manifold"):
+        return "yes" if value in (True, "yes", "True", "1") else "no"
+    x = _num(value)
+    if x is None:  # inf (e.g. edge Chamfer when the creases are lost) or text
+        return str(value)
+    if key in ("bytes", "n_vertices", "n_faces"):
+        return f"{x:,.0f}"
+    if key in ("chamfer", "hausdorff", "edge_chamfer"):
+        return f"{x:.3g}"
+    if key in ("normal_consistency", "f1@0.001", "f1@0.005", "edge_f1"):
+        return f"{x:.4f}"
+    if key in ("encode_s", "decode_s"):
+        return f"{x:.2f}"
+    return f"{x:.2f}"
+
+
+def mesh_table(rows: Sequence[dict]) -> list[str]:
+    lines = [
+        "| " + " | ".join(h for h, _ in SUMMARY_COLUMNS) + " |",
+        "|" + "|".join("---" for _ in SUMMARY_COLUMNS) + "|",
+    ]
+    for row in rows:
+        cells = [_md_cell(k, row.get(k, "")) for _, k in SUMMARY_COLUMNS]
+        if row.get("error"):
+            cells[4] = "failed: " + str(row["error"]).replace("|", "/")[:120]
+        lines.append("| " + " | ".join(cells) + " |")
+    return lines
+
+
+METRICS_LEGEND = """\
+Distances are in each input's normalized frame (bounding box scaled into [-0.9, 0.9]³; the decoded mesh is
+moved by the input's transform). CD: symmetric point-to-surface Chamfer distance (mean of the two directions,
+area-weighted samples). HD: Hausdorff distance (samples and vertices). NC: normal consistency. F1@τ: F1 score
+at distance τ. ECD / EF1: edge Chamfer distance / edge F1 (crease samples, paper Appendix C). IN>5°: % samples
+whose normal is off by more than 5°. AR>4 / RR>4: % triangles with aspect ratio (longest edge / shortest
+altitude) / radius ratio (circumradius / inradius) above 4. SA<10°: % triangles with an angle below 10°. SI: %
+self-intersecting faces. Exact definitions: `tetweave_codec/metrics.py`. The input row gives the raw size
+(float32 xyz + uint32 indices) and the input's own triangle quality. bits/vertex: 8 × bytes / input vertices.
+Times are wall-clock seconds on the machine that ran the benchmark."""
+
+
+def write_summary(
+    rows: Sequence[dict],
+    path: str | Path,
+    *,
+    command: str | None = None,
+    images: dict[str, list[str]] | None = None,
+    notes: Sequence[str] = (),
+) -> None:
+    """summary.md: a verdict per mesh, then per mesh its pictures and a table of every setting."""
+    by_mesh = rows_by_mesh(rows)
+    out = ["# tetweave bench: compression against Draco", ""]
+    if command:
+        out += ["Regenerate with:", "", "```", command, "```", ""]
+    out += [*notes, "", METRICS_LEGEND, "", "## Verdict at matched Chamfer distance", ""]
+    out += [
+        "Each family's sizes are interpolated along its Pareto front in log-log (bytes against Chamfer",
+        "distance) at the error of each setting of the focus family (tetweave when present); sizes outside a",
+        "front's range are not extrapolated.",
+        "",
+    ]
+    for mesh, mesh_rows in by_mesh.items():
+        out += [f"### {mesh}", "", *verdict(mesh_rows), ""]
+    out += ["## Per mesh", ""]
+    for mesh, mesh_rows in by_mesh.items():
+        inp = next((r for r in mesh_rows if r["family"] == INPUT_FAMILY), None)
+        size = ""
+        if inp is not None and _num(inp.get("n_faces")) is not None:
+            size = f" ({_num(inp['n_vertices']):,.0f} vertices, {_num(inp['n_faces']):,.0f} faces)"
+        out += [f"### {mesh}{size}", ""]
+        for image in (images or {}).get(mesh, []):
+            out += [f"![{image}]({image})", ""]
+        out += [*mesh_table(mesh_rows), ""]
+    failures = [r for r in rows if r.get("error")]
+    if failures:
+        out += ["## Failures", ""]
+        out += [f"- {r['mesh']}, {r['family']} {r['setting']}: {r['error']}" for r in failures]
+        out.append("")
+    write_bytes_atomic(path, "\n".join(out).encode("utf-8"))
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Pictures
+# ----------------------------------------------------------------------------------------------------------
+
+
+def _save_figure(fig, path: str | Path) -> None:
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=110, bbox_inches="tight")
+    write_bytes_atomic(path, buf.getvalue())
+
+
+def plot_rate_distortion(rows: Sequence[dict], path: str | Path, title: str = "") -> bool:
+    """Bytes against Chamfer distance, log-log, one curve per method curve; False if nothing to plot."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    good = ok_rows(rows)
+    good = [r for r in good if _num(r["chamfer"]) > 0]
+    if not good:
+        return False
+    curves: dict[str, list[dict]] = {}
+    for r in good:
+        curves.setdefault(r["curve"], []).append(r)
+    fig, ax = plt.subplots(figsize=(7.5, 5.0))
+    dashes = {}
+    for label, pts in curves.items():
+        family = pts[0]["family"]
+        colour, marker = CURVE_STYLE.get(family, ("tab:gray", "x"))
+        dashes[family] = dashes.get(family, -1) + 1
+        pts = sorted(pts, key=lambda r: _num(r["chamfer"]))
+        x = [_num(r["chamfer"]) for r in pts]
+        y = [_num(r["bytes"]) for r in pts]
+        style = ["-", "--", ":", "-."][dashes[family] % 4]
+        ax.plot(x, y, style, color=colour, marker=marker, label=label, markersize=5)
+        for r, xi, yi in zip(pts, x, y, strict=True):
+            tag = r["setting"].replace(" pts", "").split(" sh")[0] if family == "tetweave" else r["setting"]
+            ax.annotate(tag, (xi, yi), textcoords="offset points", xytext=(4, 3), fontsize=6, color=colour)
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("Chamfer distance (normalized frame, point-to-surface)")
+    ax.set_ylabel("compressed size (bytes)")
+    ax.set_title(title or "rate-distortion")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8)
+    _save_figure(fig, path)
+    plt.close(fig)
+    return True
+
+
+def comparable_rows(rows: Sequence[dict]) -> list[dict]:
+    """One row per family for the side-by-side picture, at comparable sizes.
+
+    The reference is the middle-sized tetweave setting (or, without tetweave, the middle-sized decimate+Draco
+    one); every other family contributes its setting closest to that size in log scale.
+    """
+    for family in ("tetweave", "decimate+draco", "draco"):
+        candidates = sorted(ok_rows(rows, family), key=lambda r: _num(r["bytes"]))
+        if candidates:
+            reference = candidates[(len(candidates) - 1) // 2]
+            break
+    else:
+        return []
+    target = math.log(_num(reference["bytes"]))
+    chosen = []
+    for family in PICTURE_FAMILIES:
+        if family == reference["family"]:
+            chosen.append(reference)
+            continue
+        candidates = ok_rows(rows, family)
+        if candidates:
+            chosen.append(min(candidates, key=lambda r: abs(math.log(_num(r["bytes"])) - target)))
+    return chosen
+
+
+def _render_views(vertices: np.ndarray, faces: np.ndarray, scale: float, offset: np.ndarray, size: int):
+    """(2,H,W,3) uint8: a 3/4 view of the whole shape and a close-up from the same side (input's frame)."""
+    import torch
+
+    from tetweave_codec.render import look_at_cameras, render_maps, shade
+
+    eye = torch.tensor([1.5, 1.0, 2.5], dtype=torch.float64)
+    eye = eye / eye.norm() * 3.2
+    v = torch.as_tensor((np.asarray(vertices, dtype=np.float64) - offset) / scale, dtype=torch.float32)
+    f = torch.as_tensor(np.asarray(faces, dtype=np.int64))
+    images = []
+    for fov in (45.0, 14.0):
+        cams = look_at_cameras(eye[None].float(), fov_deg=fov)
+        with torch.no_grad():
+            images.append(shade(render_maps(v, f, cams, size), cams)[0].numpy())
+    return np.stack(images)
+
+
+def side_by_side(result: MeshResult, rows: Sequence[dict], path: str | Path, size: int = 360) -> bool:
+    """Input / Draco / decimate+Draco / tetweave at comparable sizes, full view above and close-up below.
+
+    Rendered with the project's renderer (flat normals, Lambert shading); False if no method succeeded.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from tetweave_codec.metrics import normalization
+
+    chosen = [r for r in comparable_rows(rows) if f"{r['family']} {r['setting']}" in result.decoded]
+    if not chosen:
+        return False
+    scale, offset = normalization(result.vertices)
+    panels = [
+        (
+            "input",
+            f"{len(result.faces):,} faces",
+            _render_views(result.vertices, result.faces, scale, offset, size),
+        )
+    ]
+    for r in chosen:
+        v, f = result.decoded[f"{r['family']} {r['setting']}"]
+        caption = f"{_num(r['bytes']):,.0f} B, CD {_num(r['chamfer']):.2g}\n{len(f):,} faces"
+        panels.append((f"{r['family']} {r['setting']}", caption, _render_views(v, f, scale, offset, size)))
+    fig, axes = plt.subplots(2, len(panels), figsize=(2.6 * len(panels), 5.6), squeeze=False)
+    for col, (title, caption, views) in enumerate(panels):
+        for row in range(2):
+            ax = axes[row, col]
+            ax.imshow(views[row])
+            ax.set_xticks([])
+            ax.set_yticks([])
+            for spine in ax.spines.values():
+                spine.set_visible(False)
+        axes[0, col].set_title(title, fontsize=9)
+        axes[1, col].set_xlabel(caption, fontsize=8)
+    fig.suptitle(f"{result.name}: comparable sizes (top: whole shape, bottom: close-up)", fontsize=10)
+    fig.tight_layout()
+    _save_figure(fig, path)
+    plt.close(fig)
+    return True

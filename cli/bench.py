@@ -1,0 +1,261 @@
+"""`tetweave bench`: compress every mesh of a folder with tetweave, Draco and decimation + Draco, and report.
+
+Writes into --out: results.csv (one row per mesh, method and setting), summary.md (verdict at matched Chamfer
+distance and a table per mesh), rd_<mesh>.png (bytes against Chamfer distance) and side_by_side_<mesh>.png.
+Results are rewritten after every mesh, so an interrupted run still leaves the meshes done so far.
+"""
+
+from __future__ import annotations
+
+import shlex
+import time
+from pathlib import Path
+
+import click
+from tetweave_codec.cli.common import device_option, parse_count, threads_option
+
+METHOD_NAMES = ("draco", "decimate+draco", "tetweave")
+
+
+def _split(text: str) -> list[str]:
+    return [t.strip() for t in str(text).split(",") if t.strip()]
+
+
+def _counts(ctx, param, value: str) -> list[int]:
+    out = []
+    for token in _split(value):
+        try:
+            out.append(parse_count(token))
+        except click.BadParameter as exc:
+            raise click.BadParameter(exc.message, ctx=ctx, param=param) from None
+    if not out:
+        raise click.BadParameter("give at least one value", ctx=ctx, param=param)
+    return out
+
+
+def _ints(low: int, high: int):
+    def convert(ctx, param, value: str) -> list[int]:
+        try:
+            out = [int(t) for t in _split(value)]
+        except ValueError:
+            raise click.BadParameter(f"{value!r} is not a comma-separated list of integers") from None
+        bad = [x for x in out if not low <= x <= high]
+        if bad or not out:
+            raise click.BadParameter(f"values must be integers in {low}..{high}, got {value!r}")
+        return out
+
+    return convert
+
+
+def _fractions(ctx, param, value: str) -> list[float]:
+    try:
+        out = [float(t.rstrip("%")) / (100.0 if t.endswith("%") else 1.0) for t in _split(value)]
+    except ValueError:
+        raise click.BadParameter(
+            f"{value!r} is not a comma-separated list of fractions (0.1 or 10%)"
+        ) from None
+    if not out or any(not 0.0 < x <= 1.0 for x in out):
+        raise click.BadParameter(f"fractions must be in (0, 1], got {value!r}")
+    return out
+
+
+def _methods(ctx, param, value: str) -> list[str]:
+    out = _split(value)
+    bad = [m for m in out if m not in METHOD_NAMES]
+    if bad or not out:
+        raise click.BadParameter(f"choose among {', '.join(METHOD_NAMES)} (comma-separated), got {value!r}")
+    return list(dict.fromkeys(out))
+
+
+def _command_line(p: dict) -> str:
+    """The full `tetweave bench` command that regenerates a run, from the command's resolved parameters `p`
+    (every option explicit, for summary.md)."""
+
+    def join(values) -> str:
+        return ",".join(f"{v:g}" if isinstance(v, float) else str(v) for v in values)
+
+    methods = p["methods"]
+    args = [str(p["mesh_dir"]), "--out", str(p["out_dir"]), "--methods", ",".join(methods)]
+    if "tetweave" in methods:
+        args += [
+            "--points",
+            join(p["points"]),
+            "--sh-degree",
+            join(p["sh_degrees"]),
+            "--quality",
+            p["quality"],
+        ]
+        args += ["--iters", str(p["iters"])] if p["iters"] else []
+        args += ["--device", p["device"]]
+    if "draco" in methods:
+        args += ["--draco-bits", join(p["draco_bits"])]
+    if "decimate+draco" in methods:
+        args += ["--decimate", join(p["keep"]), "--decimate-bits", join(p["decimate_bits"])]
+    args += ["--samples", str(p["samples"]), "--seed", str(p["seed"])]
+    args += [] if p["pictures"] else ["--no-pictures"]
+    args += ["--threads", str(p["threads"])] if p["threads"] else []
+    return "tetweave bench " + " ".join(shlex.quote(a) for a in args)
+
+
+@click.command(context_settings={"show_default": True})
+@click.argument("mesh_dir", type=click.Path(exists=True, path_type=Path))
+@click.option(
+    "--out",
+    "out_dir",
+    type=click.Path(file_okay=False, path_type=Path),
+    default=Path("bench-results"),
+    help="Folder for results.csv, summary.md and the pictures (created if missing).",
+)
+@click.option(
+    "--methods",
+    default=",".join(METHOD_NAMES),
+    callback=_methods,
+    help=f"Comma-separated methods among: {', '.join(METHOD_NAMES)}.",
+)
+@click.option(
+    "--points",
+    default="8k,16k,32k",
+    callback=_counts,
+    help="tetweave grid point counts, comma-separated (k = 1024).",
+)
+@click.option(
+    "--sh-degree",
+    "sh_degrees",
+    default="1",
+    callback=_ints(0, 3),
+    help="tetweave SH degrees, comma-separated; every degree runs at every --points.",
+)
+@click.option(
+    "--quality",
+    type=click.Choice(["fast", "default", "best"]),
+    default="default",
+    help="tetweave fit quality (iterations and render resolution).",
+)
+@click.option(
+    "--iters",
+    type=click.IntRange(min=2),
+    default=None,
+    help="tetweave total iterations, overriding --quality's.",
+)
+@click.option(
+    "--draco-bits",
+    default="8,10,11,12,14,16",
+    callback=_ints(1, 30),
+    help="Draco position quantization bits, comma-separated.",
+)
+@click.option(
+    "--decimate",
+    "keep",
+    default="0.2,0.1,0.05,0.02",
+    callback=_fractions,
+    help="decimate+draco: fractions of the faces kept (0.1 or 10%), comma-separated.",
+)
+@click.option(
+    "--decimate-bits",
+    default="11,14",
+    callback=_ints(1, 30),
+    help="decimate+draco: Draco quantization bits after decimation, comma-separated.",
+)
+@click.option(
+    "--samples",
+    type=click.IntRange(min=1000),
+    default=200_000,
+    help="Surface samples per mesh for the Chamfer-type metrics.",
+)
+@click.option("--seed", type=int, default=0, help="Seed of the tetweave fits and of the metric samples.")
+@click.option("--pictures/--no-pictures", default=True, help="Render the side-by-side pictures.")
+@device_option
+@threads_option
+def bench(
+    mesh_dir: Path,
+    out_dir: Path,
+    methods: list[str],
+    points: list[int],
+    sh_degrees: list[int],
+    quality: str,
+    iters: int | None,
+    draco_bits: list[int],
+    keep: list[float],
+    decimate_bits: list[int],
+    samples: int,
+    seed: int,
+    pictures: bool,
+    device: str,
+    threads: int,
+) -> None:
+    """Compare tetweave with Draco on every mesh in MESH_DIR (a folder, or one mesh file).
+
+    Every method's output is decoded and measured against its input in the input's normalized frame (Chamfer
+    and Hausdorff distances, normal consistency, F1, edge metrics, triangle quality, watertightness,
+    self-intersections); sizes are compared at matched Chamfer distance. A failing mesh or method is recorded
+    in its rows and the batch goes on.
+    """
+    from tetweave_codec.benchmarks import report
+    from tetweave_codec.benchmarks.baselines import decimate_draco_methods, draco_methods
+    from tetweave_codec.benchmarks.batch import find_meshes, run_batch
+    from tetweave_codec.benchmarks.methods import TetweaveMethod
+    from tetweave_codec.cli.common import configure_torch
+
+    from tetweave_codec.metrics import MetricOptions
+
+    paths = find_meshes(mesh_dir)
+    if "tetweave" in methods:
+        device = str(configure_torch(threads, device))
+    elif threads and pictures:  # only the renderer uses torch; the baselines never import it
+        import torch
+
+        torch.set_num_threads(threads)
+    method_list = []
+    if "draco" in methods:
+        method_list += draco_methods(draco_bits)
+    if "decimate+draco" in methods:
+        method_list += decimate_draco_methods(keep, decimate_bits)
+    if "tetweave" in methods:
+        method_list += [
+            TetweaveMethod(n, d, quality=quality, iters=iters, device=device, seed=seed)
+            for d in sh_degrees
+            for n in points
+        ]
+    out_dir.mkdir(parents=True, exist_ok=True)
+    options = MetricOptions.for_samples(samples, seed=seed)
+    command = _command_line(click.get_current_context().params)
+    rows: list[dict] = []
+    images: dict[str, list[str]] = {}
+    t_start = time.perf_counter()
+
+    def say(message: str) -> None:
+        click.echo(f"[{time.perf_counter() - t_start:7.1f}s] {message}", err=True)
+
+    def on_mesh(result) -> None:
+        rows.extend(result.rows)
+        names = []
+        jobs = [
+            (
+                f"rd_{result.name}.png",
+                lambda p: report.plot_rate_distortion(result.rows, p, title=result.name),
+            )
+        ]
+        if pictures:
+            jobs.append(
+                (f"side_by_side_{result.name}.png", lambda p: report.side_by_side(result, result.rows, p))
+            )
+        for name, job in jobs:
+            try:
+                if job(out_dir / name):
+                    names.append(name)
+            except Exception as exc:  # a picture must not cost the numbers
+                say(f"{result.name}: could not write {name}: {type(exc).__name__}: {exc}")
+        images[result.name] = names
+        report.write_csv(rows, out_dir / "results.csv")
+        report.write_summary(rows, out_dir / "summary.md", command=command, images=images)
+
+    say(f"{len(paths)} mesh(es) x {len(method_list)} method setting(s) -> {out_dir}")
+    all_rows = run_batch(paths, method_list, options, progress=say, on_mesh=on_mesh)
+    # meshes that could not be loaded never reach on_mesh: their rows are only in all_rows
+    report.write_csv(all_rows, out_dir / "results.csv")
+    report.write_summary(all_rows, out_dir / "summary.md", command=command, images=images)
+    failures = sum(1 for r in all_rows if r.get("error"))
+    say(
+        f"done: {out_dir / 'results.csv'}, {out_dir / 'summary.md'}"
+        + (f"; {failures} failed row(s), see the error column" if failures else "")
+    )

@@ -1,0 +1,314 @@
+"""`tetweave bench`: baselines, the matched-error verdict, the batch runner, its reports and the command."""
+
+from __future__ import annotations
+
+import csv
+import math
+
+import manifold3d
+import numpy as np
+import pytest
+from click.testing import CliRunner
+from tetweave_codec.benchmarks import report
+from tetweave_codec.benchmarks.baselines import (
+    DRACO_COMPRESSION_LEVEL,
+    DecimateDracoMethod,
+    DracoMethod,
+    decimate,
+    draco_decode,
+    draco_encode,
+)
+from tetweave_codec.benchmarks.batch import COLUMNS, find_meshes, mesh_labels, run_batch, run_mesh
+from tetweave_codec.benchmarks.methods import Method, TetweaveMethod
+from tetweave_codec.cli.main import main
+
+from tetweave_codec.meshio import save_mesh
+from tetweave_codec.metrics import MetricOptions
+
+OPTIONS = MetricOptions.for_samples(10_000)
+
+
+def _mesh(solid: manifold3d.Manifold) -> tuple[np.ndarray, np.ndarray]:
+    m = solid.to_mesh()
+    return np.asarray(m.vert_properties, dtype=np.float64)[:, :3], np.asarray(m.tri_verts, dtype=np.int64)
+
+
+def sphere(radius=1.0, segments=48):
+    return _mesh(manifold3d.Manifold.sphere(radius, segments))
+
+
+def rounded_box():
+    """A box with many faces (so decimation has something to remove): a cube minus a sphere cap."""
+    cube = manifold3d.Manifold.cube([2.0, 1.4, 1.0], center=True)
+    return _mesh(cube - manifold3d.Manifold.sphere(0.7, 48).translate([1.0, 0.7, 0.5]))
+
+
+@pytest.fixture
+def mesh_dir(tmp_path):
+    folder = tmp_path / "meshes"
+    folder.mkdir()
+    save_mesh(folder / "ball.ply", *sphere(1.0, 40))
+    save_mesh(folder / "block.obj", *rounded_box())
+    (folder / "notes.txt").write_text("not a mesh")
+    return folder
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Baselines
+# ----------------------------------------------------------------------------------------------------------
+
+
+def test_draco_round_trip_error_is_bounded_by_the_quantization_step():
+    v, f = sphere(3.0, 64)
+    v = v + [10.0, -4.0, 2.0]
+    sizes = []
+    for bits in (8, 11, 14):
+        data = draco_encode(v, f, bits, DRACO_COMPRESSION_LEVEL)
+        v2, f2 = draco_decode(data)
+        assert len(f2) == len(f) and len(v2) == len(v)
+        # Draco quantizes every axis over the largest bounding-box side: error <= half a step per axis
+        step = float((v.max(0) - v.min(0)).max()) / (2**bits - 1)
+        nearest = np.min(np.linalg.norm(v2[:, None, :] - v[None, :, :], axis=2), axis=1)
+        assert nearest.max() <= math.sqrt(3) * step / 2 * 1.01
+        sizes.append(len(data))
+    assert sizes[0] < sizes[1] < sizes[2]
+
+
+def test_draco_level_is_set_explicitly():
+    v, f = sphere(1.0, 64)
+    level7 = DracoMethod(11).encode(v, f)
+    assert len(level7) == len(draco_encode(v, f, 11, 7))
+    assert len(level7) < len(draco_encode(v, f, 11, 1))  # DracoPy's default level compresses worse
+
+
+def test_decimation_keeps_about_the_requested_fraction():
+    v, f = sphere(1.0, 96)
+    for keep in (0.2, 0.05):
+        v2, f2 = decimate(v, f, keep)
+        assert abs(len(f2) / len(f) - keep) < 0.02
+    method = DecimateDracoMethod(0.1, 11)
+    v3, f3 = method.decode(method.encode(v, f))
+    assert abs(len(f3) / len(f) - 0.1) < 0.02
+    assert method.curve == "decimate+draco q11" and method.setting == "10% q11"
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Verdict at matched error
+# ----------------------------------------------------------------------------------------------------------
+
+
+def test_pareto_front_and_log_log_interpolation():
+    front = report.pareto_front([(1.0, 100.0), (2.0, 50.0), (4.0, 25.0), (3.0, 80.0), (0.0, 5.0)])
+    assert front == [(1.0, 100.0), (2.0, 50.0), (4.0, 25.0)]
+    # bytes = 100 / error on this front: log-log interpolation is exact
+    assert report.bytes_at(front, math.sqrt(2)) == pytest.approx(100 / math.sqrt(2))
+    assert report.bytes_at(front, 3.0) == pytest.approx(100 / 3)
+    assert report.bytes_at(front, 4.0) == pytest.approx(25.0)
+    assert report.bytes_at(front, 0.5) is None and report.bytes_at(front, 5.0) is None
+
+
+def _row(family, setting, chamfer, size, mesh="m"):
+    return {
+        "mesh": mesh,
+        "family": family,
+        "curve": family,
+        "setting": setting,
+        "chamfer": chamfer,
+        "bytes": size,
+    }
+
+
+def test_verdict_compares_at_matched_error():
+    rows = [
+        {"mesh": "m", "family": "input", "curve": "input", "setting": "raw", "bytes": 10**6, "chamfer": ""},
+        _row("draco", "q8", 1e-3, 8000),
+        _row("draco", "q11", 1e-4, 16000),
+        _row("decimate+draco", "10% q11", 1e-3, 2000),
+        _row("decimate+draco", "20% q11", 2e-4, 4000),
+        _row("tetweave", "8192 pts sh1", 3e-4, 1500),  # smaller than both at its error
+        _row("tetweave", "32768 pts sh1", 1e-4, 20000),  # larger than Draco at its error
+        _row("tetweave", "4096 pts sh1", 5e-3, 900),  # outside every other front
+        {**_row("draco", "q14", "", ""), "error": "RuntimeError: boom"},
+    ]
+    lines = report.verdict(rows)
+    assert lines[0].startswith("- **tetweave is smallest at 1 of 2 matched-error points**")
+    assert "1 of its settings fall outside" in lines[0]
+    at_8k = next(line for line in lines if "8192 pts" in line)
+    # decimate+draco at 3e-4: between (2e-4, 4000) and (1e-3, 2000) in log-log
+    expected = math.exp(np.interp(math.log(3e-4), np.log([2e-4, 1e-3]), np.log([4000, 2000])))
+    assert f"decimate+draco ≈ {expected:,.0f} B" in at_8k and "smallest: **tetweave**" in at_8k
+    at_32k = next(line for line in lines if "32768 pts" in line)
+    assert "smallest: **draco**" in at_32k and "1.25× smaller than tetweave" in at_32k
+    assert "outside" in next(line for line in lines if "4096 pts" in line)
+
+
+def test_comparable_rows_pick_the_closest_size():
+    rows = [
+        _row("draco", "q8", 1e-3, 5000),
+        _row("draco", "q11", 1e-4, 12000),
+        _row("decimate+draco", "a", 1e-3, 900),
+        _row("decimate+draco", "b", 1e-3, 3000),
+        _row("tetweave", "small", 1e-3, 1000),
+        _row("tetweave", "mid", 1e-3, 4000),
+        _row("tetweave", "big", 1e-3, 16000),
+    ]
+    chosen = {r["family"]: r["setting"] for r in report.comparable_rows(rows)}
+    assert chosen == {"tetweave": "mid", "draco": "q8", "decimate+draco": "b"}
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Batch runner
+# ----------------------------------------------------------------------------------------------------------
+
+
+class _Broken(Method):
+    family = "draco"
+
+    @property
+    def setting(self) -> str:
+        return "broken"
+
+    def encode(self, vertices, faces) -> bytes:
+        raise RuntimeError("encoder exploded")
+
+    def decode(self, data):
+        raise AssertionError("never called")
+
+
+class _Shifted(Method):
+    """Stores the mesh losslessly but decodes it moved by 1% of its size along x: a known Chamfer."""
+
+    family = "draco"
+
+    @property
+    def setting(self) -> str:
+        return "shifted"
+
+    def encode(self, vertices, faces) -> bytes:
+        self._mesh = (vertices, faces)
+        return b"x" * 1000
+
+    def decode(self, data):
+        v, f = self._mesh
+        return v + [0.01 * float((v.max(0) - v.min(0)).max()), 0.0, 0.0], f
+
+
+def test_run_mesh_records_failures_and_goes_on():
+    v, f = _mesh(manifold3d.Manifold.cube([1.0, 1.0, 1.0], center=True))
+    result = run_mesh("cube", v, f, [_Broken(), _Shifted(), DracoMethod(12)], OPTIONS)
+    inp, broken, shifted, draco = result.rows
+    assert inp["family"] == "input" and inp["bytes"] == 12 * 8 + 12 * 12 and inp["watertight"]
+    assert broken["error"] == "RuntimeError: encoder exploded" and broken["chamfer"] == ""
+    assert set(result.decoded) == {"draco shifted", "draco q12"}
+    # a 1% shift of a cube in x: two of six faces are 0.018 away in the normalized frame, the rest slide
+    assert shifted["chamfer"] == pytest.approx(0.018 / 3, rel=0.05)
+    assert shifted["bytes"] == 1000 and shifted["bits_per_vertex"] == 1000
+    assert draco["error"] == "" and draco["chamfer"] < 1e-3 and draco["watertight"]
+    assert all(set(r) == set(COLUMNS) for r in result.rows)
+
+
+def test_find_meshes_and_labels(mesh_dir, tmp_path):
+    paths = find_meshes(mesh_dir)
+    assert [p.name for p in paths] == ["ball.ply", "block.obj"]
+    assert find_meshes(paths[0]) == [paths[0]]
+    assert mesh_labels([tmp_path / "a b.obj", tmp_path / "x.ply", tmp_path / "x.obj"]) == [
+        "a_b",
+        "x_ply",
+        "x_obj",
+    ]
+
+
+def test_unreadable_mesh_is_reported_in_its_rows(mesh_dir):
+    (mesh_dir / "broken.obj").write_text("v 0 0 0\nf 1 2 3\n")
+    rows = run_batch(find_meshes(mesh_dir), [DracoMethod(11)], OPTIONS)
+    broken = [r for r in rows if r["mesh"] == "broken"]
+    assert len(broken) == 1 and broken[0]["error"].startswith("load: ")
+    assert all(not r["error"] for r in rows if r["mesh"] != "broken")
+
+
+# ----------------------------------------------------------------------------------------------------------
+# The command, end to end on two small meshes
+# ----------------------------------------------------------------------------------------------------------
+
+
+def _png_size(path):
+    data = path.read_bytes()
+    assert data[:8] == b"\x89PNG\r\n\x1a\n"
+    return int.from_bytes(data[16:20], "big"), int.from_bytes(data[20:24], "big")
+
+
+def test_bench_command_end_to_end_with_draco(mesh_dir, tmp_path):
+    out = tmp_path / "results"
+    args = [
+        "bench", str(mesh_dir), "--out", str(out), "--methods", "draco,decimate+draco",
+        "--draco-bits", "8,11,14", "--decimate", "20%,5%", "--decimate-bits", "11", "--samples", "10000",
+        "--threads", "1",
+    ]  # fmt: skip
+    result = CliRunner().invoke(main, args)
+    assert result.exit_code == 0, result.output
+    with open(out / "results.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    assert list(rows[0]) == COLUMNS
+    assert [(r["mesh"], r["family"]) for r in rows].count(("ball", "draco")) == 3
+    assert len(rows) == 2 * (1 + 3 + 2)
+    assert all(r["error"] == "" for r in rows)
+    for r in rows:
+        if r["family"] == "draco":
+            assert r["watertight"] == "yes" and float(r["chamfer"]) < 5e-3
+    ball = {r["setting"]: float(r["chamfer"]) for r in rows if r["mesh"] == "ball" and r["family"] == "draco"}
+    assert ball["q14"] < ball["q11"] < ball["q8"]
+    summary = (out / "summary.md").read_text()
+    assert "tetweave bench" in summary and "--draco-bits 8,11,14" in summary
+    assert "### ball" in summary and "### block" in summary
+    assert "decimate+draco is smallest at" in summary
+    assert "![side_by_side_ball.png](side_by_side_ball.png)" in summary
+    for name in ("rd_ball.png", "rd_block.png", "side_by_side_ball.png", "side_by_side_block.png"):
+        width, height = _png_size(out / name)
+        assert width > 300 and height > 200
+    # progress went to stderr, one line per method and mesh
+    assert result.output.count("draco q11:") == 2
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--points", "lots"], "not a count"),
+        (["--methods", "draco,zip"], "choose among"),
+        (["--draco-bits", "8,40"], "1..30"),
+        (["--decimate", "0"], "(0, 1]"),
+    ],
+)
+def test_bench_rejects_bad_options(mesh_dir, tmp_path, args, message):
+    result = CliRunner().invoke(main, ["bench", str(mesh_dir), "--out", str(tmp_path / "o"), *args])
+    assert result.exit_code == 2 and message in result.output
+    assert not (tmp_path / "o").exists()
+
+
+def test_bench_on_a_folder_without_meshes(tmp_path):
+    (tmp_path / "empty").mkdir()
+    result = CliRunner().invoke(main, ["bench", str(tmp_path / "empty"), "--out", str(tmp_path / "o")])
+    assert result.exit_code == 2
+    assert result.output.strip().splitlines()[-1].startswith("tetweave: error:")
+    assert "no mesh files" in result.output and "Traceback" not in result.output
+
+
+# ----------------------------------------------------------------------------------------------------------
+# tetweave itself (needs the encoder)
+# ----------------------------------------------------------------------------------------------------------
+
+
+def test_tetweave_method_through_the_batch():
+    """A few hundred points on a sphere: decodes watertight, stores at most the fitted points, close to the
+    input."""
+    v, f = sphere(0.8, 32)
+    method = TetweaveMethod(384, sh_degree=1, quality="fast", iters=12, device="cpu", seed=0)
+    result = run_mesh("ball", v, f, [method], OPTIONS)
+    row = result.rows[1]
+    assert row["error"] == ""
+    assert row["family"] == "tetweave" and row["setting"] == "384 pts sh1" and row["points"] == 384
+    assert 0 < row["points_stored"] <= 384
+    assert row["bytes"] > 64 + 2 * row["points_stored"] * 4
+    assert row["watertight"] and row["two_manifold"] and row["self_intersect_pct"] == 0.0
+    assert row["chamfer"] < 0.05
+    v2, f2 = result.decoded[method.name]
+    assert len(f2) == row["n_faces"]
