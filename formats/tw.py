@@ -136,7 +136,8 @@ def _as_f16(a, name: str) -> np.ndarray:
     if arr.dtype != np.float16:
         if not np.issubdtype(arr.dtype, np.floating):
             raise ValueError(f"{name} must be a float array, got {arr.dtype}")
-        arr = arr.astype(np.float16)
+        with np.errstate(over="ignore"):  # overflow to inf is reported just below
+            arr = arr.astype(np.float16)
     if not np.isfinite(arr).all():
         raise ValueError(f"{name} has values that are not finite in float16 (|x| > 65504 or NaN)")
     return arr
