@@ -172,20 +172,12 @@ class Reference:
 
 
 def normalization(vertices: np.ndarray) -> tuple[float, np.ndarray]:
-    """(scale, offset) with `original = normalized * scale + offset` (bbox centre, longest side 1.8)."""
-    try:
-        from tetweave_codec.meshio import normalize
-    except ImportError:  # meshio.py is written in parallel; same convention (ARCHITECTURE.md)
-        normalize = _normalize
+    """(scale, offset) of `meshio.normalize`: `original = normalized * scale + offset` (bbox centre, longest
+    side 1.8)."""
+    from tetweave_codec.meshio import normalize
+
     _, scale, offset = normalize(np.asarray(vertices, dtype=np.float64))
     return float(scale), np.asarray(offset, dtype=np.float64)
-
-
-def _normalize(vertices: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
-    lo, hi = vertices.min(axis=0), vertices.max(axis=0)
-    offset = 0.5 * (lo + hi)
-    scale = float((hi - lo).max()) / 1.8 or 1.0
-    return (vertices - offset) / scale, scale, offset
 
 
 def _to_frame(vertices: np.ndarray, scale: float, offset: np.ndarray) -> np.ndarray:
