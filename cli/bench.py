@@ -12,7 +12,7 @@ import time
 from pathlib import Path
 
 import click
-from tetweave_codec.cli.common import device_option, parse_count, threads_option
+from tetweave_codec.cli.common import configure_torch, device_option, parse_count, threads_option
 
 METHOD_NAMES = ("draco", "decimate+draco", "tetweave")
 
@@ -65,6 +65,23 @@ def _methods(ctx, param, value: str) -> list[str]:
     if bad or not out:
         raise click.BadParameter(f"choose among {', '.join(METHOD_NAMES)} (comma-separated), got {value!r}")
     return list(dict.fromkeys(out))
+
+
+def _fit_progress(say, label: str, steps: int = 4):
+    """A fit progress callback that reports each stage `steps` times (not every iteration) through `say`."""
+    last: dict[str, int] = {}
+
+    def callback(stage: str, done: int, total: int, info: dict) -> None:
+        if total <= 0 or stage not in ("main", "late"):
+            return
+        step = done * steps // total
+        if step != last.get(stage):
+            last[stage] = step
+            loss = f", loss {info['loss']:.4g}" if "loss" in info else ""
+            pts = f", {info['points']:,} points" if "points" in info else ""
+            say(f"  {label}: {stage} stage {done}/{total}{loss}{pts}")
+
+    return callback
 
 
 def _command_line(p: dict) -> str:
@@ -194,11 +211,15 @@ def bench(
     from tetweave_codec.benchmarks.baselines import decimate_draco_methods, draco_methods
     from tetweave_codec.benchmarks.batch import find_meshes, run_batch
     from tetweave_codec.benchmarks.methods import TetweaveMethod
-    from tetweave_codec.cli.common import configure_torch
 
     from tetweave_codec.metrics import MetricOptions
 
     paths = find_meshes(mesh_dir)
+    t_start = time.perf_counter()
+
+    def say(message: str) -> None:
+        click.echo(f"[{time.perf_counter() - t_start:7.1f}s] {message}", err=True)
+
     if "tetweave" in methods:
         device = str(configure_torch(threads, device))
     elif threads and pictures:  # only the renderer uses torch; the baselines never import it
@@ -212,7 +233,15 @@ def bench(
         method_list += decimate_draco_methods(keep, decimate_bits)
     if "tetweave" in methods:
         method_list += [
-            TetweaveMethod(n, d, quality=quality, iters=iters, device=device, seed=seed)
+            TetweaveMethod(
+                n,
+                d,
+                quality=quality,
+                iters=iters,
+                device=device,
+                seed=seed,
+                progress=_fit_progress(say, f"tetweave {n} pts sh{d}"),
+            )
             for d in sh_degrees
             for n in points
         ]
@@ -221,10 +250,6 @@ def bench(
     command = _command_line(click.get_current_context().params)
     rows: list[dict] = []
     images: dict[str, list[str]] = {}
-    t_start = time.perf_counter()
-
-    def say(message: str) -> None:
-        click.echo(f"[{time.perf_counter() - t_start:7.1f}s] {message}", err=True)
 
     def on_mesh(result) -> None:
         rows.extend(result.rows)
