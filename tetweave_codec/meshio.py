@@ -164,7 +164,10 @@ def write_bytes_atomic(path: str | os.PathLike, data: bytes) -> None:
     """
     target = os.fspath(path)
     directory = os.path.dirname(os.path.abspath(target))
-    fd, tmp = tempfile.mkstemp(prefix="." + os.path.basename(target) + ".", suffix=".tmp", dir=directory)
+    try:
+        fd, tmp = tempfile.mkstemp(prefix="." + os.path.basename(target) + ".", suffix=".tmp", dir=directory)
+    except OSError as exc:  # report the path the user asked for, not our temporary name
+        raise OSError(exc.errno, f"cannot write there ({exc.strerror})", target) from None
     try:
         with os.fdopen(fd, "wb") as fh:
             fh.write(data)

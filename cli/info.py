@@ -1,0 +1,69 @@
+"""`tetweave info`: describe a `.tw` file (header, sizes, bounding box) without writing anything."""
+
+from __future__ import annotations
+
+import time
+import warnings
+from pathlib import Path
+
+import click
+import numpy as np
+from tetweave_codec.cli.decode import echo_warnings, read_tw_bytes
+
+
+def _box(lo: np.ndarray, hi: np.ndarray) -> str:
+    fmt = lambda a: "(" + ", ".join(f"{x:.6g}" for x in a) + ")"  # noqa: E731
+    return f"{fmt(lo)} .. {fmt(hi)}, size {fmt(hi - lo)}"
+
+
+@click.command(context_settings={"show_default": True})
+@click.argument("file", type=click.Path(path_type=Path))
+@click.option(
+    "--mesh", is_flag=True, help="Also decode FILE and report the mesh: counts and exact bounding box."
+)
+def info(file: Path, mesh: bool) -> None:
+    """Describe FILE (a .tw file): version, points, SH degree, byte sizes, bounding box.
+
+    The bounding box is that of the stored points in the original mesh's coordinates; the decoded surface lies
+    inside it (use --mesh for the surface's own box).
+    """
+    from tetweave_codec.formats import tw
+
+    data = read_tw_bytes(file)
+    f = tw.unpack(data)
+    n, q = f.num_points, (f.sh_degree + 1) ** 2
+    payload = len(data) - tw.HEADER_SIZE - tw.CHECKSUM_SIZE
+    lines = [
+        ("file", str(file)),
+        ("format", f".tw version {tw.VERSION}, payload codec {f.codec} (raw float16)"),
+        ("points", f"{n:,}"),
+        (
+            "SH degree",
+            "none (0 coefficients per point)" if f.sh_degree < 0 else f"{f.sh_degree} ({q} per point)",
+        ),
+        ("flags", f"0x{f.flags:x} (Delaunay backend: {f.backend})"),
+        (
+            "bytes",
+            f"{len(data):,} total = header {tw.HEADER_SIZE} + payload {payload:,} "
+            f"(positions {6 * n:,}, s {2 * n:,}, c {2 * n * q:,}) + checksum {tw.CHECKSUM_SIZE}",
+        ),
+        ("transform", f"original = normalized * {f.scale:.9g} + ({', '.join(f'{x:.9g}' for x in f.offset)})"),
+    ]
+    if n:
+        pts = f.points.astype(np.float64) * f.scale + f.offset
+        lines.append(("points box", _box(pts.min(0), pts.max(0))))
+    if mesh:
+        from tetweave_codec.decoder import decode_detailed
+
+        start = time.perf_counter()
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            result = decode_detailed(data)
+        echo_warnings(caught)
+        v = result.vertices
+        lines.append(("mesh", f"{len(v):,} vertices, {len(result.faces):,} faces "
+                              f"(decoded in {time.perf_counter() - start:.2f}s)"))  # fmt: skip
+        lines.append(("mesh box", _box(v.min(0), v.max(0)) if len(v) else "empty"))
+    width = max(len(k) for k, _ in lines)
+    for key, value in lines:
+        click.echo(f"{key:<{width}}  {value}")

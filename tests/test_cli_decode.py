@@ -1,0 +1,205 @@
+"""`tetweave decode` and `tetweave info` through click's CliRunner, plus one real subprocess call."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import struct
+import subprocess
+import zlib
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+from tetweave_codec.cli.main import main
+from tetweave_codec.formats.tw import TetWeaveFile, pack
+
+from tetweave_codec.decoder import decode as decode_bytes
+from tetweave_codec.meshio import load_mesh
+
+OFFSET = np.array([3.0, -1.0, 7.0])
+
+
+def write_sphere(path: Path, n: int = 2000, sign: float = 1.0) -> bytes:
+    rng = np.random.default_rng(0)
+    pts = rng.uniform(-1, 1, (n, 3))
+    s = sign * (np.linalg.norm(pts, axis=1) - 0.6)
+    c = rng.normal(size=(n, 4)) * 0.2
+    data = pack(
+        TetWeaveFile(pts.astype(np.float16), s.astype(np.float16), c.astype(np.float16), 1, 5.0, OFFSET)
+    )
+    path.write_bytes(data)
+    return data
+
+
+def run(*args):
+    return CliRunner().invoke(main, [str(a) for a in args])
+
+
+def assert_clean_failure(result, *, message: str = ""):
+    assert result.exit_code == 2, result.output
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("tetweave: error:"), lines
+    assert "Traceback" not in result.output
+    assert message in result.stderr
+
+
+@pytest.fixture
+def tw_file(tmp_path) -> Path:
+    path = tmp_path / "shape.tw"
+    write_sphere(path)
+    return path
+
+
+def test_decode_writes_beside_the_input_by_default(tw_file):
+    result = run("decode", tw_file)
+    assert result.exit_code == 0, result.output
+    out = tw_file.with_name("shape.decoded.obj")
+    assert out.is_file()
+    v, f = load_mesh(out)
+    ref_v, ref_f = decode_bytes(tw_file.read_bytes())
+    assert np.array_equal(f, ref_f)
+    np.testing.assert_allclose(v, ref_v, atol=1e-7)
+    assert f"{len(ref_v):,} vertices, {len(ref_f):,} faces" in result.stdout
+    assert "Delaunay" in result.stdout and "marching tets" in result.stdout
+    assert tw_file.read_bytes()[:4] == b"\x89TWV"  # the input is untouched
+
+
+@pytest.mark.parametrize("ext", ["ply", "stl", "off", "glb"])
+def test_decode_output_format_from_extension(tw_file, tmp_path, ext):
+    out = tmp_path / f"mesh.{ext}"
+    result = run("decode", tw_file, "-o", out)
+    assert result.exit_code == 0, result.output
+    v, f = load_mesh(out)
+    assert len(f) == len(decode_bytes(tw_file.read_bytes())[1])
+    # original frame: the sphere of radius 0.6 * 5 around OFFSET
+    assert np.abs(np.linalg.norm(v - OFFSET, axis=1) - 3.0).max() < 0.3
+
+
+def test_decode_with_explicit_backend(tw_file, tmp_path):
+    result = run("decode", tw_file, "-o", tmp_path / "q.ply", "--delaunay", "qhull")
+    assert result.exit_code == 0 and "with qhull" in result.stdout
+
+
+def test_empty_mesh_warns_and_writes_an_empty_file(tmp_path):
+    path = tmp_path / "outside.tw"
+    write_sphere(path, sign=0.0)  # s = 0 everywhere counts as outside
+    out = tmp_path / "outside.ply"
+    result = run("decode", path, "-o", out)
+    assert result.exit_code == 0
+    assert "warning" in result.stderr and "empty" in result.stderr
+    assert out.is_file() and "0 vertices, 0 faces" in result.stdout
+
+
+def test_info_reports_the_header(tw_file):
+    result = run("info", tw_file)
+    assert result.exit_code == 0, result.output
+    out = result.stdout
+    for needle in (".tw version 1", "points      2,000", "SH degree   1 (4 per point)", "tetgen", "header 64",
+                   "payload 32,000", "checksum 4", "32,068 total", "points box"):  # fmt: skip
+        assert needle in out, (needle, out)
+
+
+def test_info_with_mesh(tw_file):
+    result = run("info", tw_file, "--mesh")
+    assert result.exit_code == 0
+    v, f = decode_bytes(tw_file.read_bytes())
+    assert f"{len(v):,} vertices, {len(f):,} faces" in result.stdout and "mesh box" in result.stdout
+
+
+def _bad_files(tmp_path: Path, good: bytes) -> dict[str, tuple[Path, str]]:
+    files = {}
+
+    def put(name, data, message):
+        p = tmp_path / name
+        p.write_bytes(data)
+        files[name] = (p, message)
+
+    put("truncated.tw", good[: len(good) // 2], "truncated")
+    put("header-only.tw", good[:40], "truncated")
+    flipped = bytearray(good)
+    flipped[500] ^= 0x10
+    put("corrupted.tw", bytes(flipped), "checksum")
+    newer = bytearray(good)
+    struct.pack_into("<H", newer, 8, 2)
+    body = bytes(newer[:-4])
+    put("version2.tw", body + struct.pack("<I", zlib.crc32(body)), "unsupported .tw version 2")
+    put("mesh.tw", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", "not a .tw file")
+    put("empty.tw", b"", "not a .tw file")
+    return files
+
+
+@pytest.mark.parametrize("command", ["decode", "info"])
+def test_bad_containers_fail_cleanly(tmp_path, command):
+    good = write_sphere(tmp_path / "good.tw")
+    for name, (path, message) in _bad_files(tmp_path, good).items():
+        out = tmp_path / f"{name}.ply"
+        out.write_bytes(b"previous content")
+        args = ("decode", path, "-o", out) if command == "decode" else ("info", path)
+        result = run(*args)
+        assert_clean_failure(result, message=message)
+        assert out.read_bytes() == b"previous content", name
+
+
+def test_missing_input_and_directories(tmp_path):
+    assert_clean_failure(run("decode", tmp_path / "missing.tw"), message="no such file")
+    assert_clean_failure(run("info", tmp_path / "missing.tw"), message="no such file")
+    (tmp_path / "dir.tw").mkdir()
+    assert_clean_failure(run("info", tmp_path / "dir.tw"))
+
+
+def test_bad_outputs_fail_before_writing(tw_file, tmp_path):
+    assert_clean_failure(
+        run("decode", tw_file, "-o", tmp_path / "out.xyz"), message="unsupported output format"
+    )
+    assert_clean_failure(run("decode", tw_file, "-o", tmp_path / "no" / "dir.obj"), message="does not exist")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["shape.tw"]
+
+
+def test_output_equal_to_input_is_refused(tmp_path):
+    path = tmp_path / "shape.obj"  # a .tw file with a mesh extension: -o shape.obj would overwrite it
+    data = write_sphere(path)
+    assert_clean_failure(run("decode", path, "-o", path), message="overwrite")
+    assert path.read_bytes() == data
+
+
+def test_failed_write_leaves_no_partial_file(tw_file, tmp_path, monkeypatch):
+    def full_disk(fd):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(os, "fsync", full_disk)
+    out = tmp_path / "out.obj"
+    assert_clean_failure(run("decode", tw_file, "-o", out), message="No space left on device")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["shape.tw"]
+
+
+def test_help_shows_defaults():
+    result = run("decode", "--help")
+    assert result.exit_code == 0 and ".decoded.obj" in result.output and "default: file" in result.output
+    assert run("info", "--help").exit_code == 0
+
+
+def test_installed_command_in_a_subprocess(tw_file, tmp_path):
+    exe = shutil.which("tetweave")
+    if exe is None:
+        pytest.skip("the tetweave console script is not installed")
+    out = tmp_path / "sub.ply"
+    done = subprocess.run(
+        [exe, "decode", str(tw_file), "-o", str(out)], capture_output=True, text=True, timeout=120
+    )
+    assert done.returncode == 0, done.stderr
+    assert out.is_file() and "faces" in done.stdout
+    bad = tmp_path / "bad.tw"
+    bad.write_bytes(tw_file.read_bytes()[:100])
+    done = subprocess.run([exe, "info", str(bad)], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2
+    assert done.stderr.strip().splitlines() == [done.stderr.strip()] and "truncated" in done.stderr
+    assert "Traceback" not in done.stderr
+
+
+def test_directories_as_input_or_output(tw_file, tmp_path):
+    (tmp_path / "dir.tw").mkdir()
+    assert_clean_failure(run("decode", tmp_path / "dir.tw"), message="not a regular file")
+    (tmp_path / "dir.obj").mkdir()
+    assert_clean_failure(run("decode", tw_file, "-o", tmp_path / "dir.obj"), message="is a directory")
