@@ -307,3 +307,20 @@ def test_mesh_from_points_validates_shapes():
         mesh_from_points(f.points, f.s[:-1], f.c, 2)
     v, faces = mesh_from_points(f.points, f.s, None, -1)
     assert len(faces) > 0
+
+
+def test_readme_example_is_what_pack_writes():
+    """The hex dump in formats/README.md is the exact encoding of its example."""
+    from pathlib import Path
+
+    readme = Path(__file__).resolve().parent.parent / "formats" / "README.md"
+    block = readme.read_text().split("## Example", 1)[1].split("```")[1]
+    hex_bytes = []
+    for line in block.strip().splitlines():
+        hex_bytes += line[6:].split("   ")[0].split()  # drop the offset column and the comment
+    hexdump = bytes.fromhex("".join(hex_bytes))
+    points = np.array([[0.5, -0.25, 1.0], [0, 0, -1]], np.float16)
+    s = np.array([-0.125, 2.0], np.float16)
+    c = np.array([[0.0], [1.0]], np.float16)
+    f = TetWeaveFile(points, s, c, 0, 2.0, np.array([1.0, 0.0, -3.0]), 0)
+    assert hexdump == pack(f)
