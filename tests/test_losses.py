@@ -150,7 +150,7 @@ def test_odt_empty():
     points = torch.rand(5, 3, requires_grad=True)
     value = losses.odt_loss(points, torch.zeros((0, 4), dtype=torch.long))
     value.backward()
-    assert float(value) == 0.0 and bool((points.grad == 0).all())
+    assert value.item() == 0.0 and bool((points.grad == 0).all())
 
 
 # --- fairness ---
@@ -196,7 +196,7 @@ def test_fairness_degenerate_no_nan(dtype):
     assert torch.isfinite(value) and bool(torch.isfinite(v.grad).all())
     # collinear face (0, 0, pi) and the right isosceles face are kept, the ones with zero-length edges skipped
     expected = ((2 * (math.pi / 3) ** 2 + (2 * math.pi / 3) ** 2) / 3 + math.pi ** 2 / 72) / 2
-    assert float(value) == pytest.approx(expected, rel=1e-5)
+    assert value.item() == pytest.approx(expected, rel=1e-5)
 
 
 def test_fairness_empty_and_all_degenerate():
@@ -204,7 +204,7 @@ def test_fairness_empty_and_all_degenerate():
     for faces in (torch.zeros((0, 3), dtype=torch.long), torch.tensor([[0, 1, 2]])):
         value = losses.fairness_loss(v, faces)
         value.backward()
-        assert float(value) == 0.0 and bool(torch.isfinite(v.grad).all())
+        assert value.item() == 0.0 and bool(torch.isfinite(v.grad).all())
 
 
 # --- sign ---
@@ -248,7 +248,7 @@ def test_sign_loss_no_change_is_zero():
     s = torch.tensor([1.0, 2.0, 3.0], requires_grad=True)
     value = losses.sign_loss(s, torch.tensor([[0, 1], [1, 2]]))
     value.backward()
-    assert float(value) == 0.0 and bool((s.grad == 0).all())
+    assert value.item() == 0.0 and bool((s.grad == 0).all())
 
 
 # --- images ---

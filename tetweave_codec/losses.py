@@ -54,41 +54,47 @@ def _zero_like_graph(*tensors: torch.Tensor) -> torch.Tensor:
 
 # --- ODT ---
 
+def _cross(u: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
+    """Cross product of (3,T) component-major vectors."""
+    return torch.stack([u[1] * w[2] - u[2] * w[1], u[2] * w[0] - u[0] * w[2], u[0] * w[1] - u[1] * w[0]])
+
+
+def _dot(u: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
+    """(T,) dot product of (3,T) component-major vectors."""
+    return u[0] * w[0] + u[1] * w[1] + u[2] * w[2]
+
+
 def _odt_terms(points: torch.Tensor, tets: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor,
-                                                                   torch.Tensor]:
+                                                                   torch.Tensor, torch.Tensor]:
     """Quantities shared by the ODT energies, with a = v1-v0, b = v2-v0, c = v3-v0.
 
     The circumcenter is v0 + n / (2 det) with n = |a|^2 (b x c) + |b|^2 (c x a) + |c|^2 (a x b) and
-    det = a . (b x c), so centroid - circumcenter = m / (2 det) with m = 2 det (centroid - v0) - n and R = |n|
-    / (2|det|). Working with n and m avoids dividing by det where it cancels.
+    det = a . (b x c), so centroid - circumcenter = m / (2 det) with m = 2 det (centroid - v0) - n and
+    R = |n| / (2 |det|). Working with n and m avoids dividing by det where it cancels. Vectors are (3,T)
+    component-major: elementwise ops on contiguous rows run about twice as fast as (T,3) with sum(-1).
 
     Args:
         points: (N,3) float.
         tets: (T,4) long.
     Returns:
-        det (T,), guarded_det (T,) (|det| floored, see DEGENERATE_DET), n (T,3), g0 (T,3) = centroid - v0.
+        det (T,), guarded_det (T,) (|det| floored, see DEGENERATE_DET), n (3,T), g0 (3,T) = centroid - v0,
+        mean squared edge length (T,) (no gradient).
     """
-    v = points[tets]  # (T,4,3)
-    a = v[:, 1] - v[:, 0]
-    b = v[:, 2] - v[:, 0]
-    c = v[:, 3] - v[:, 0]
-    bxc = torch.linalg.cross(b, c)
-    det = (a * bxc).sum(-1)
-    n = ((a * a).sum(-1, keepdim=True) * bxc + (b * b).sum(-1, keepdim=True) * torch.linalg.cross(c, a)
-         + (c * c).sum(-1, keepdim=True) * torch.linalg.cross(a, b))
+    pt = points.t()
+    v0, v1, v2, v3 = (pt[:, tets[:, k]] for k in range(4))
+    a, b, c = v1 - v0, v2 - v0, v3 - v0
+    bxc = _cross(b, c)
+    det = _dot(a, bxc)
+    n = _dot(a, a) * bxc + _dot(b, b) * _cross(c, a) + _dot(c, c) * _cross(a, b)
     # Flat tetrahedra have no finite circumcenter: floor |det| relative to the tet's size (no gradient through
     # the floor) so that slivers get a large but finite circumsphere instead of inf/NaN.
     with torch.no_grad():
-        floor = torch.clamp(DEGENERATE_DET * _mean_sq_edge(a, b, c).pow(1.5), min=_TINY)
+        sq = (_dot(a, a) + _dot(b, b) + _dot(c, c) + _dot(b - a, b - a) + _dot(c - a, c - a)
+              + _dot(c - b, c - b)) / 6.0
+        floor = torch.clamp(DEGENERATE_DET * sq.pow(1.5), min=_TINY)
         sign = torch.where(det < 0, -torch.ones_like(det), torch.ones_like(det))
     guarded = torch.where(det.abs() < floor, sign * floor, det)
-    return det, guarded, n, (a + b + c) / 4.0
-
-
-def _mean_sq_edge(a: torch.Tensor, b: torch.Tensor, c: torch.Tensor) -> torch.Tensor:
-    """(T,) mean squared edge length of tetrahedra given by a, b, c = v1-v0, v2-v0, v3-v0 (T,3)."""
-    return ((a * a).sum(-1) + (b * b).sum(-1) + (c * c).sum(-1) + ((b - a) ** 2).sum(-1)
-            + ((c - a) ** 2).sum(-1) + ((c - b) ** 2).sum(-1)) / 6.0
+    return det, guarded, n, (a + b + c) / 4.0, sq
 
 
 def tet_circumcenters(points: torch.Tensor, tets: torch.Tensor) -> torch.Tensor:
@@ -98,17 +104,18 @@ def tet_circumcenters(points: torch.Tensor, tets: torch.Tensor) -> torch.Tensor:
         points: (N,3) float.
         tets: (T,4) long.
     """
-    _, det, n, _ = _odt_terms(points, tets)
-    return points[tets[:, 0]] + n / (2.0 * det.unsqueeze(-1))
+    _, det, n, _, _ = _odt_terms(points, tets)
+    return points[tets[:, 0]] + (n / (2.0 * det)).t()
 
 
 def odt_energy(points: torch.Tensor, tets: torch.Tensor) -> torch.Tensor:
     """Per-tetrahedron ODT energy of the paper (App. B): E = |M_S - M_T| = 1.6 V |centroid - circumcenter|^2.
 
     With x_i = v_i - c (c the circumcenter, |x_i| = R) Tonon's formula gives
-    M_T = V/5 * (sum_i |x_i|^2 + sum_{i<j} x_i.x_j) = V/5 * (2 R^2 + |sum_i x_i|^2 / 2) = 2/5 V R^2 + 8/5 V |g
-    - c|^2 (g the centroid, sum_i x_i = 4 (g - c)), and M_S = 2/5 V R^2, so M_T - M_S = 1.6 V |g - c|^2 >= 0.
-    Computed as 1.6 / 24 * |2 det (g - v0) - n|^2 / |det| (see ``_odt_terms``); det is floored for flat tets,
+    M_T = V/5 (sum_i |x_i|^2 + sum_{i<j} x_i.x_j) = V/5 (2 R^2 + |sum_i x_i|^2 / 2)
+        = 2/5 V R^2 + 8/5 V |g - c|^2
+    (g the centroid, sum_i x_i = 4 (g - c)), and M_S = 2/5 V R^2, so M_T - M_S = 1.6 V |g - c|^2 >= 0.
+    Computed as 1.6 / 24 |2 det (g - v0) - n|^2 / |det| (see ``_odt_terms``); det is floored for flat tets,
     whose energy is then large (it grows like 1/V) but finite.
 
     Args:
@@ -117,19 +124,19 @@ def odt_energy(points: torch.Tensor, tets: torch.Tensor) -> torch.Tensor:
     Returns:
         (T,) energies in length^5 units, zero exactly for a regular tetrahedron.
     """
-    _, det, n, g0 = _odt_terms(points, tets)
-    m = 2.0 * det.unsqueeze(-1) * g0 - n
-    return (ODT_FACTOR / 24.0) * (m * m).sum(-1) / det.abs()
+    _, det, n, g0, _ = _odt_terms(points, tets)
+    m = 2.0 * det * g0 - n
+    return (ODT_FACTOR / 24.0) * _dot(m, m) / det.abs()
 
 
 def odt_relative_energy(points: torch.Tensor, tets: torch.Tensor) -> torch.Tensor:
     """Per-tetrahedron ODT energy relative to the sphere's moment: (M_T - M_S) / M_S = 4 |g - c|^2 / R^2.
 
     Dimensionless, in [0, 4] (the centroid lies inside the circumsphere), zero exactly where the paper's
-    energy is zero (regular tetrahedra). Computed as 4 |2 det (g - v0) - n|^2 / |n|^2, in which det does not
-    divide anything: a flat tet scores 4 (its circumcenter is at infinity), except a flat tet with its four
-    corners on one circle (n = 0, circumsphere undefined), which scores |2 det (g - v0) - n|^2 / floor -> 0
-    like the paper's energy does for slivers.
+    energy is zero (regular tetrahedra). Computed as 4 |2 det (g - v0) - n|^2 / |n|^2, in which det divides
+    nothing: a flat tet scores 4 (its circumcenter is at infinity), except a flat tet with its four corners on
+    one circle (n = 0, circumsphere undefined), which scores |2 det (g - v0) - n|^2 / floor -> 0, as the
+    paper's energy does for slivers.
 
     Args:
         points: (N,3) float.
@@ -137,16 +144,11 @@ def odt_relative_energy(points: torch.Tensor, tets: torch.Tensor) -> torch.Tenso
     Returns:
         (T,) dimensionless energies.
     """
-    det, _, n, g0 = _odt_terms(points, tets)
-    m = 2.0 * det.unsqueeze(-1) * g0 - n
-    n2 = (n * n).sum(-1)
-    with torch.no_grad():
-        # |n|^2 scales like length^8; floor it relative to the tet's size so that n = 0 gives 0/floor, not
-        # 0/0.
-        v = points[tets]
-        floor = torch.clamp(DEGENERATE_DET ** 2 * _mean_sq_edge(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0],
-                                                                 v[:, 3] - v[:, 0]).pow(4), min=_TINY)
-    return (ODT_FACTOR / SHELL_FACTOR) * (m * m).sum(-1) / torch.maximum(n2, floor)
+    det, _, n, g0, sq = _odt_terms(points, tets)
+    m = 2.0 * det * g0 - n
+    # |n|^2 scales like length^8; floor it relative to the tet's size so that n = 0 gives 0/floor, not 0/0.
+    floor = torch.clamp(DEGENERATE_DET ** 2 * sq.pow(4), min=_TINY)
+    return (ODT_FACTOR / SHELL_FACTOR) * _dot(m, m) / torch.maximum(_dot(n, n), floor)
 
 
 def odt_loss(points: torch.Tensor, tets: torch.Tensor, reduction: str = "relative") -> torch.Tensor:
@@ -190,6 +192,13 @@ def odt_loss(points: torch.Tensor, tets: torch.Tensor, reduction: str = "relativ
 DEGENERATE_EDGE = 1e-10
 
 
+def _corner_angle(u: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
+    """(F,) angle between (3,F) edge vectors u and w: atan2(|u x w|, u.w), finite value and gradient."""
+    cross = _cross(u, w)
+    # sqrt(x + tiny) instead of norm(): norm's gradient at a zero vector is NaN; here it is 0 * finite = 0.
+    return torch.atan2(torch.sqrt(_dot(cross, cross) + _TINY), _dot(u, w))
+
+
 def triangle_angles(vertices: torch.Tensor, faces: torch.Tensor) -> torch.Tensor:
     """Interior angles of triangles, atan2(|u x w|, u.w), finite for every input (no NaN value or gradient).
 
@@ -199,14 +208,10 @@ def triangle_angles(vertices: torch.Tensor, faces: torch.Tensor) -> torch.Tensor
     Returns:
         (F,3) angles in radians at corners faces[:, 0], faces[:, 1], faces[:, 2].
     """
-    tri = vertices[faces]  # (F,3,3)
-    u = tri.roll(-1, dims=1) - tri  # edge to the next corner
-    w = tri.roll(1, dims=1) - tri  # edge to the previous corner
-    cross = torch.linalg.cross(u, w)
-    # sqrt(x + tiny) instead of norm(): norm's gradient at a zero vector is NaN; here it is 0 * finite = 0.
-    sin = torch.sqrt((cross * cross).sum(-1) + _TINY)
-    cos = (u * w).sum(-1)
-    return torch.atan2(sin, cos)
+    vt = vertices.t()
+    p0, p1, p2 = (vt[:, faces[:, k]] for k in range(3))
+    e01, e12, e20 = p1 - p0, p2 - p1, p0 - p2
+    return torch.stack([_corner_angle(e01, -e20), _corner_angle(e12, -e01), _corner_angle(e20, -e12)], dim=1)
 
 
 def fairness_loss(vertices: torch.Tensor, faces: torch.Tensor) -> torch.Tensor:
@@ -227,9 +232,10 @@ def fairness_loss(vertices: torch.Tensor, faces: torch.Tensor) -> torch.Tensor:
     """
     if faces.shape[0] == 0:
         return _zero_like_graph(vertices)
-    tri = vertices[faces]
     with torch.no_grad():
-        e2 = ((tri.roll(-1, dims=1) - tri) ** 2).sum(-1)  # (F,3) squared edge lengths
+        vt = vertices.t()
+        p0, p1, p2 = (vt[:, faces[:, k]] for k in range(3))
+        e2 = torch.stack([_dot(p1 - p0, p1 - p0), _dot(p2 - p1, p2 - p1), _dot(p0 - p2, p0 - p2)], dim=1)
         scale = e2.mean()
         valid = (e2 > DEGENERATE_EDGE * scale).all(-1) & (scale > 0)
     if not bool(valid.any()):
