@@ -202,10 +202,11 @@ def marching_tets_numpy(
     tets = np.asarray(tets, dtype=np.int64)
     n = len(points)
     inside = s < 0
-    occ = inside[tets]
-    code = occ[:, 0] + 2 * occ[:, 1].astype(np.int64) + 4 * occ[:, 2] + 8 * occ[:, 3]
-    tet_idx = np.flatnonzero((code > 0) & (code < 15))
-    code = code[tet_idx]
+    # The 4 inside flags of a tet as the bytes of one little-endian uint32; mixed tets: not 0, not all ones.
+    occ = inside.view(np.uint8)[tets].view("<u4").reshape(-1)
+    tet_idx = np.flatnonzero((occ != 0) & (occ != 0x01010101))
+    occ = occ[tet_idx]
+    code = ((occ & 1) | ((occ >> 7) & 2) | ((occ >> 14) & 4) | ((occ >> 21) & 8)).astype(np.int64)
     mixed = tets[tet_idx]
     key = np.empty((len(mixed), 6), dtype=np.int64)
     for e, (a, b) in enumerate(TET_EDGES.tolist()):
