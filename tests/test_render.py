@@ -273,7 +273,7 @@ def test_chunking_does_not_change_the_image(device, monkeypatch):
     faces = torch.cat([faces, faces + verts.shape[0] // 2])
     cams = fibonacci_cameras(3, device=device)
     ref = rasterize(verts, faces, cams, 96)
-    monkeypatch.setattr(rasterize_module, "PAIR_CHUNK", 257)
+    monkeypatch.setattr(rasterize_module, "FACE_CHUNK", 257)
     monkeypatch.setattr(rasterize_module, "CANDIDATE_CHUNK", 64)
     small = rasterize(verts, faces, cams, 96)
     assert torch.equal(ref.face_id, small.face_id)
