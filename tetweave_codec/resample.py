@@ -20,6 +20,10 @@ import numpy as np
 import torch
 from scipy.spatial import cKDTree
 
+# Positions, index arrays and values may be torch tensors or numpy arrays where noted.
+Array = torch.Tensor | np.ndarray
+BoxCorner = torch.Tensor | np.ndarray | tuple[float, float, float] | list[float]
+
 # Local vertices of the face opposite each local vertex of a tet (face i does not contain vertex i).
 TET_FACES = np.array([[1, 2, 3], [0, 2, 3], [0, 1, 3], [0, 1, 2]], dtype=np.int64)
 # A query is inside a tet when all its barycentric coordinates are >= -INSIDE_TOLERANCE.
@@ -68,8 +72,8 @@ def _segment_sums(keys: torch.Tensor, values: torch.Tensor, size: int) -> tuple[
     return sums, counts
 
 
-def voxel_importance(surface_points: torch.Tensor, errors: torch.Tensor, bbox_min, bbox_max,
-                     resolution: int = 32) -> torch.Tensor:
+def voxel_importance(surface_points: torch.Tensor, errors: torch.Tensor, bbox_min: BoxCorner,
+                     bbox_max: BoxCorner, resolution: int = 32) -> torch.Tensor:
     """Importance h of paper eq. (importance): mean error of the pixels whose surface points fall in a voxel.
 
     Args:
@@ -98,7 +102,8 @@ def _triangle_lattice(m: int) -> np.ndarray:
     return np.stack([m - i - j, i, j], axis=1) / m
 
 
-def uniform_importance(vertices, faces, bbox, resolution: int = 32) -> torch.Tensor:
+def uniform_importance(vertices: Array, faces: Array, bbox: tuple[BoxCorner, BoxCorner], resolution: int = 32
+                       ) -> torch.Tensor:
     """Importance of uniform sampling (paper §4.3): 1 in the voxels the mesh touches, 0 elsewhere.
 
     Each triangle is sampled with a barycentric lattice whose step is at most LATTICE_STEP voxel sides, so
@@ -135,7 +140,8 @@ def uniform_importance(vertices, faces, bbox, resolution: int = 32) -> torch.Ten
     return torch.from_numpy(grid.reshape(resolution, resolution, resolution)).to(device)
 
 
-def sample_from_importance(grid: torch.Tensor, bbox_min, bbox_max, k: int, generator: torch.Generator,
+def sample_from_importance(grid: torch.Tensor, bbox_min: BoxCorner, bbox_max: BoxCorner, k: int,
+                           generator: torch.Generator, *,
                            dtype: torch.dtype | None = None) -> torch.Tensor:
     """Draw k points with density proportional to the importance grid (paper §4.3).
 
@@ -191,7 +197,7 @@ def sample_from_importance(grid: torch.Tensor, bbox_min, bbox_max, k: int, gener
     return pts.to(device=device, dtype=dtype)
 
 
-def tet_neighbors(tets: np.ndarray) -> np.ndarray:
+def tet_neighbors(tets: Array) -> np.ndarray:
     """(T,4) int64 neighbour of each tet across the face opposite each local vertex, -1 on the boundary.
 
     Args:
@@ -236,7 +242,7 @@ def _barycentric(corners: np.ndarray, q: np.ndarray) -> np.ndarray:
     return np.stack([1.0 - l1 - l2 - l3, l1, l2, l3], axis=1)
 
 
-def locate_in_tets(points, tets, queries, neighbors: np.ndarray | None = None
+def locate_in_tets(points: Array, tets: Array, queries: Array, neighbors: np.ndarray | None = None
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Find the tetrahedron that contains each query (visibility walk) and its barycentric coordinates.
 
@@ -298,15 +304,16 @@ def locate_in_tets(points, tets, queries, neighbors: np.ndarray | None = None
     return tet, bary, nearest
 
 
-def _to_numpy(x) -> np.ndarray:
+def _to_numpy(x: Array) -> np.ndarray:
     return x.detach().cpu().numpy() if isinstance(x, torch.Tensor) else np.asarray(x)
 
 
-def _to_numpy64(x) -> np.ndarray:
+def _to_numpy64(x: Array) -> np.ndarray:
     return _to_numpy(x).astype(np.float64)
 
 
-def interpolate_in_tets(points, tets, values, queries, neighbors: np.ndarray | None = None):
+def interpolate_in_tets(points: Array, tets: Array, values: Array, queries: Array,
+                        neighbors: np.ndarray | None = None) -> Array:
     """Barycentric interpolation of per-point values at query positions (paper §4.3).
 
     Each query takes sum_i bary_i * values[tet_i] in the tet that contains it (``locate_in_tets``); queries
@@ -347,9 +354,10 @@ def interpolate_in_tets(points, tets, values, queries, neighbors: np.ndarray | N
     return out.reshape(-1) if squeeze else out
 
 
-def resample(points: torch.Tensor, s: torch.Tensor, c: torch.Tensor, tets, keep: torch.Tensor,
-             grid: torch.Tensor, bbox, n_target: int, generator: torch.Generator, *,
-             priority: torch.Tensor | None = None, return_kept: bool = False):
+def resample(points: torch.Tensor, s: torch.Tensor, c: torch.Tensor, tets: Array, keep: torch.Tensor,
+             grid: torch.Tensor, bbox: tuple[BoxCorner, BoxCorner], n_target: int,
+             generator: torch.Generator, *,
+             priority: torch.Tensor | None = None, return_kept: bool = False) -> tuple[torch.Tensor, ...]:
     """Keep the points that matter, drop the rest and draw new ones from an importance grid (paper §4.3).
 
     Args:
