@@ -1,0 +1,239 @@
+"""Analytic antialiasing of silhouette edges: makes rendered images differentiable w.r.t. the outline.
+
+In the spirit of the antialias operation of Laine et al. 2020 ("Modular Primitives for High-Performance
+Differentiable Rendering", §3.3): where the line between two neighbouring pixel centres crosses a visible
+silhouette edge, one of the two pixels is blended towards the other by the edge's approximate coverage, and
+the crossing point is a differentiable function of the edge's projected end points.
+
+nvdiffrast looks for the silhouette edge among the edges of the triangle visible at the pixel centre. On dense
+meshes the triangles along a smooth outline are seen edge-on and almost never contain a pixel centre, so that
+test finds nothing (measured here: no blended pixel at all for a 5K-face sphere at 64² or a 20K-face sphere at
+256²). This module starts from the edges instead:
+
+1. `mesh_edges`: every edge with its one or two faces (once per mesh; pass it in to reuse it);
+2. per view, silhouette edges: boundary edges, and edges whose two faces face opposite ways (a fold in screen
+   space), from the 3D facing of every face towards the camera;
+3. each silhouette edge is walked along the pixel rows it spans if it is steeper than 45° (columns
+   otherwise); at every row it crosses between two horizontally neighbouring centres (vertically for
+   columns). The pixel on the edge's face side is the *inner* one; the crossing is kept if the edge is visible
+   there: the inner pixel is covered and the outer one is background or farther than the edge;
+4. one crossing per pixel pair (the outermost one), at distance `t` in [0, 1] from the inner centre: the
+   outer pixel takes the inner colour with weight t - 1/2 when t > 1/2, else the inner pixel takes the outer
+   colour with weight 1/2 - t. Along a straight outline the mask's row sum is then the exactly covered
+   length.
+
+The colours keep their own gradients; `t` adds the gradients w.r.t. the silhouette vertices.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from .cameras import Cameras
+from .rasterize import NEAR
+
+DEPTH_TOLERANCE = 1e-4  # relative: how much farther than the edge the outer pixel must be to lie behind it
+
+
+@dataclass(frozen=True)
+class MeshEdges:
+    """Edge topology of a triangle mesh (E edges).
+
+    ends (E,2) long: end points (a, b) in the winding order of the edge's first face.
+    faces (E,2) long: first and second face; second = -1 on boundary edges. An edge of 3+ faces (non-manifold)
+        is listed once per face, each as a boundary edge.
+    apex (E,) long: vertex of the first face opposite the edge (marks the face's side of the edge).
+    consistent (E,) bool: the second face runs the edge b -> a, i.e. the two faces are oriented alike.
+    """
+
+    ends: Tensor
+    faces: Tensor
+    apex: Tensor
+    consistent: Tensor
+
+
+def mesh_edges(faces: Tensor, n_vertices: int | None = None) -> MeshEdges:
+    """Edge topology of faces (F,3) long (see MeshEdges). Deterministic; one sort of the 3F edges."""
+    if n_vertices is None:
+        n_vertices = int(faces.max()) + 1 if faces.numel() else 0
+    device = faces.device
+    n_faces = faces.shape[0]
+    # Entry 3f+k is edge k of face f, from vertex EDGE_START[k] to EDGE_END[k]; the vertex opposite it is the
+    # face's vertex k, i.e. entry 3f+k of faces.reshape(-1).
+    a = faces.roll(-1, 1).reshape(-1)
+    b = faces.roll(-2, 1).reshape(-1)
+    key = torch.minimum(a, b) * n_vertices + torch.maximum(a, b)
+    order = _argsort(key, n_vertices * n_vertices)  # equal keys stay in entry order
+    skey = key.index_select(0, order)
+    starts = torch.ones_like(skey, dtype=torch.bool)
+    torch.ne(skey[1:], skey[:-1], out=starts[1:])
+    # A run of two equal keys is an interior edge; runs of one (boundary) or 3+ (non-manifold) are listed per
+    # entry, as boundary edges.
+    run_len = torch.bincount(torch.cumsum(starts, 0) - 1)
+    start_pos = starts.nonzero().squeeze(1)
+    pair_pos = start_pos.index_select(0, (run_len == 2).nonzero().squeeze(1))
+    first = order.index_select(0, pair_pos)
+    second = order.index_select(0, pair_pos + 1)
+    pos_len = torch.repeat_interleave(run_len, run_len, output_size=skey.numel())
+    lone = order.index_select(0, (pos_len != 2).nonzero().squeeze(1))
+    first = torch.cat([first, lone])
+    second = torch.cat([second, torch.full_like(lone, -1)])
+    face_of = torch.arange(n_faces, device=device).repeat_interleave(3)
+    f1 = face_of.index_select(0, first)
+    f2 = torch.where(second >= 0, face_of.index_select(0, second.clamp_min(0)), -1)
+    a1, b1 = a.index_select(0, first), b.index_select(0, first)
+    apex = faces.reshape(-1).index_select(0, first)
+    consistent = (second < 0) | (a.index_select(0, second.clamp_min(0)) == b1)
+    return MeshEdges(torch.stack([a1, b1], dim=1), torch.stack([f1, f2], dim=1), apex, consistent)
+
+
+def _argsort(key: Tensor, key_bound: int) -> Tensor:
+    """Permutation sorting int64 `key` (values in [0, key_bound)), ties by position. Deterministic.
+
+    On the CPU the positions are packed into the low bits so that numpy's (vectorized) value sort can be used,
+    which is several times faster than an argsort.
+    """
+    n = key.numel()
+    bits = max(1, int(n).bit_length())
+    if key.device.type == "cpu" and key_bound > 0 and key_bound.bit_length() + bits <= 62:
+        packed = (key << bits) | torch.arange(n, dtype=torch.int64)
+        return torch.from_numpy(np.sort(packed.numpy())) & ((1 << bits) - 1)
+    return torch.sort(key, stable=True).indices
+
+
+def antialias(color: Tensor, face_id: Tensor, depth: Tensor, vertices: Tensor, faces: Tensor,
+              cameras: Cameras, screen: Tensor, edges: MeshEdges | None = None) -> Tensor:
+    """Blend pixels across visible silhouette edges by their analytic coverage (differentiable).
+
+    color (B,H,W,C): attributes to antialias (mask, depth, normals, ...), with gradients.
+    face_id (B,H,W) long, -1 background; depth (B,H,W) camera depth at the pixel centres (only compared).
+    vertices (V,3) world positions and faces (F,3) long of the mesh; cameras: the B views.
+    screen (B,V,3): `cameras.project(vertices, (H, W))`, with gradients w.r.t. the vertices.
+    edges: `mesh_edges(faces)`, computed here when None.
+    Returns (B,H,W,C): `color` plus the blends; equal to `color` away from silhouettes.
+    """
+    n_views, h, w, channels = color.shape
+    if faces.shape[0] == 0:
+        return color
+    if edges is None:
+        edges = mesh_edges(faces, vertices.shape[0])
+    view, edge = _silhouette_edges(vertices.detach(), faces, cameras, edges)
+    if edge.numel() == 0:
+        return color
+    crossing = _crossings(screen, view, edge, edges, face_id, depth, h, w)
+    if crossing is None:
+        return color
+    inner, outer, t = crossing
+    alpha = 0.5 - t.clamp(0.0, 1.0)  # > 0: the edge lies before the midpoint: the inner pixel is partly bare
+    target = torch.where(alpha > 0, inner, outer)
+    source = torch.where(alpha > 0, outer, inner)
+    flat = color.reshape(-1, channels)
+    diff = flat.index_select(0, source) - flat.index_select(0, target)
+    blend = alpha.abs().to(color.dtype)[:, None] * diff
+    return flat.index_add(0, target, blend).view(n_views, h, w, channels)
+
+
+def _silhouette_edges(vertices: Tensor, faces: Tensor, cameras: Cameras,
+                      edges: MeshEdges) -> tuple[Tensor, Tensor]:
+    """(view, edge) index pairs (S,) of the silhouette edges of every view (no gradient)."""
+    with torch.no_grad():
+        v0 = vertices.index_select(0, faces[:, 0])
+        normal = torch.linalg.cross(vertices.index_select(0, faces[:, 1]) - v0,
+                                    vertices.index_select(0, faces[:, 2]) - v0, dim=-1)
+        eyes = cameras.eye.to(vertices.dtype)
+        facing = (eyes @ normal.t()) > (normal * v0).sum(-1)  # (B,F): front side towards the camera
+        f1, f2 = edges.faces[:, 0], edges.faces[:, 1]
+        front1 = facing.index_select(1, f1)
+        front2 = facing.index_select(1, f2.clamp_min(0))
+        silhouette = ((front1 != front2) == edges.consistent) | (f2 < 0)  # (B,E)
+        view, edge = silhouette.nonzero(as_tuple=True)
+    return view, edge
+
+
+def _crossings(screen: Tensor, view: Tensor, edge: Tensor, edges: MeshEdges, face_id: Tensor, depth: Tensor,
+               h: int, w: int):
+    """Visible crossings of silhouette edges with pixel pairs: inner pixel (K,), outer pixel (K,), t (K,).
+
+    t is differentiable w.r.t. `screen`; at most one crossing per pixel pair is returned (the outermost).
+    """
+    device = screen.device
+    n_verts = screen.shape[1]
+    flat_screen = screen.reshape(-1, 3)
+    ends = edges.ends.index_select(0, edge)
+    va = view * n_verts + ends[:, 0]
+    vb = view * n_verts + ends[:, 1]
+    vo = view * n_verts + edges.apex.index_select(0, edge)
+    with torch.no_grad():
+        pa, pb, po = (flat_screen.detach().index_select(0, i) for i in (va, vb, vo))
+        ok = (pa[:, 2] > NEAR) & (pb[:, 2] > NEAR) & (po[:, 2] > NEAR)
+        steep = (pb[:, 1] - pa[:, 1]).abs() >= (pb[:, 0] - pa[:, 0]).abs()
+        # (u, v) frame: pairs lie along u, the edge is walked along v (rows if steep, columns otherwise).
+        ua, va_, ub, vb_ = (torch.where(steep, p[:, i], p[:, 1 - i]) for p in (pa, pb) for i in (0, 1))
+        n_u = torch.where(steep, w, h)
+        n_v = torch.where(steep, h, w)
+        k0 = torch.ceil(torch.minimum(va_, vb_) - 0.5).clamp(min=0)
+        k1 = torch.minimum(torch.ceil(torch.maximum(va_, vb_) - 0.5) - 1, (n_v - 1).to(k0.dtype))
+        count = torch.where(ok, (k1 - k0 + 1).clamp(min=0), 0).long()
+        total = int(count.sum())
+        if total == 0:
+            return None
+        which = torch.repeat_interleave(torch.arange(count.numel(), device=device), count, output_size=total)
+        line = k0.long().index_select(0, which) + torch.arange(total, device=device) - \
+            (torch.cumsum(count, 0) - count).index_select(0, which)
+    # Differentiable crossing of edge `which` with the centre line v = line + 0.5.
+    pa_g, pb_g = flat_screen.index_select(0, va.index_select(0, which)), flat_screen.index_select(
+        0, vb.index_select(0, which))
+    st = steep.index_select(0, which)
+    ua_g = torch.where(st, pa_g[:, 0], pa_g[:, 1])
+    ub_g = torch.where(st, pb_g[:, 0], pb_g[:, 1])
+    va_g = torch.where(st, pa_g[:, 1], pa_g[:, 0])
+    vb_g = torch.where(st, pb_g[:, 1], pb_g[:, 0])
+    centre_v = line.to(screen.dtype) + 0.5
+    s = (centre_v - va_g) / (vb_g - va_g)
+    u_cross = ua_g + s * (ub_g - ua_g)
+    with torch.no_grad():
+        j = torch.floor(u_cross.detach() - 0.5).long()  # pair: centres j + 0.5 and j + 1.5 along u
+        n_u_w = n_u.index_select(0, which)
+        valid = (j >= 0) & (j + 1 < n_u_w)
+        # The first pixel (smaller u) is on the edge's face side iff the apex lies on the same side as it.
+        dv = vb_g.detach() - va_g.detach()
+        du = ub_g.detach() - ua_g.detach()
+        pa_d, po_d = pa.index_select(0, which), po.index_select(0, which)
+        uo = torch.where(st, po_d[:, 0], po_d[:, 1]) - ua_g.detach()
+        vo_ = torch.where(st, po_d[:, 1], po_d[:, 0]) - va_g.detach()
+        apex_side = du * vo_ - dv * uo
+        first_inner = (apex_side > 0) == (dv > 0)
+        b = view.index_select(0, which)
+        jc = j.clamp(0, None)
+        first = torch.where(st, b * (h * w) + line * w + jc, b * (h * w) + jc * w + line)
+        second = first + torch.where(st, 1, w)
+        inner = torch.where(first_inner, first, second)
+        outer = torch.where(first_inner, second, first)
+        # Visibility: the inner pixel is covered, the outer one is background or behind the edge.
+        fid, dep = face_id.reshape(-1), depth.reshape(-1)
+        inner_c, outer_c = inner.clamp(0, fid.numel() - 1), outer.clamp(0, fid.numel() - 1)
+        inv_z = (1.0 - s.detach()) / pa_d[:, 2] + s.detach() / pb.index_select(0, which)[:, 2]
+        z_edge = 1.0 / inv_z
+        out_bg = fid.index_select(0, outer_c) < 0
+        out_behind = dep.index_select(0, outer_c) > z_edge * (1.0 + DEPTH_TOLERANCE)
+        keep = valid & (fid.index_select(0, inner_c) >= 0) & (out_bg | out_behind)
+        keep = keep.nonzero().squeeze(1)
+        if keep.numel() == 0:
+            return None
+    t_first = u_cross.index_select(0, keep) - (j.index_select(0, keep).to(screen.dtype) + 0.5)
+    fi = first_inner.index_select(0, keep)
+    t = torch.where(fi, t_first, 1.0 - t_first)
+    inner, outer = inner.index_select(0, keep), outer.index_select(0, keep)
+    with torch.no_grad():
+        # One crossing per pixel pair: the one farthest from the inner centre (the outermost outline).
+        pair = torch.minimum(inner, outer) * 2 + (inner - outer).abs().ne(1).long()
+        t_bits = t.detach().clamp(0.0, 1.0).to(torch.float32).view(torch.int32).to(torch.int64)
+        packed = (t_bits << 32) | torch.arange(t.numel(), device=device)
+        best = torch.full((face_id.numel() * 2,), -1, dtype=torch.int64, device=device)
+        best.scatter_reduce_(0, pair, packed, reduce="amax")
+        win = (best.index_select(0, pair) == packed).nonzero().squeeze(1)
+    return inner.index_select(0, win), outer.index_select(0, win), t.index_select(0, win)

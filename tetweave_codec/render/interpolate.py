@@ -1,0 +1,52 @@
+"""Differentiable attribute interpolation at the pixel centres the rasterizer assigned to each triangle.
+
+The rasterizer only says which triangle is visible at a pixel. Here the barycentrics of that pixel centre are
+recomputed from the (differentiable) projected vertex positions, so gradients of depth and normals flow to the
+vertices of the visible triangles. Screen-space barycentrics are made perspective-correct by weighting with
+the inverse vertex depths.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+from .rasterize import EDGE_END, EDGE_START
+
+
+def perspective_barycentrics(tri: Tensor, px: Tensor, py: Tensor) -> tuple[Tensor, Tensor]:
+    """Perspective-correct barycentrics and depth of pixel centres inside triangles (differentiable).
+
+    tri (N,3,3): per pixel, the triangle's three vertices as (screen x, screen y, camera depth z);
+    px, py (N,): the pixel centres in screen coordinates.
+    Returns bary (N,3) (sums to 1) and depth (N,) (camera depth of the surface point seen through the pixel).
+    """
+    x, y, z = tri.unbind(-1)  # (N,3) each
+    dx, dy = x - px[:, None], y - py[:, None]
+    s, e = list(EDGE_START), list(EDGE_END)
+    # Twice the signed area of (pixel, edge start, edge end): the screen barycentric of vertex k times area
+    sub = dx[:, s] * dy[:, e] - dy[:, s] * dx[:, e]  # (N,3)
+    area = sub.sum(-1)
+    weighted = sub / z
+    denom = weighted.sum(-1)
+    # Degenerate (edge-on) triangles have area ~ 0: give them finite values and no gradient.
+    bad = (denom == 0) | (area == 0)
+    safe = torch.where(bad, torch.ones_like(denom), denom)
+    bary = torch.where(bad[:, None], torch.full_like(weighted, 1.0 / 3.0), weighted / safe[:, None])
+    depth = torch.where(bad, z.mean(-1), area / safe)
+    return bary, depth
+
+
+def face_normals(vertices: Tensor, faces: Tensor) -> Tensor:
+    """Unit normals (F,3) of faces (F,3) by the right-hand rule (zero for degenerate faces)."""
+    v0, v1, v2 = vertices[faces[:, 0]], vertices[faces[:, 1]], vertices[faces[:, 2]]
+    n = torch.linalg.cross(v1 - v0, v2 - v0, dim=-1)
+    return n / n.norm(dim=-1, keepdim=True).clamp_min(torch.finfo(n.dtype).tiny ** 0.5)
+
+
+def vertex_normals(vertices: Tensor, faces: Tensor) -> Tensor:
+    """Unit area-weighted vertex normals (V,3) (zero for unreferenced vertices)."""
+    v0, v1, v2 = vertices[faces[:, 0]], vertices[faces[:, 1]], vertices[faces[:, 2]]
+    n = torch.linalg.cross(v1 - v0, v2 - v0, dim=-1)  # length = 2 * area: area weighting for free
+    acc = torch.zeros_like(vertices).index_add(0, faces.reshape(-1), n.repeat_interleave(3, dim=0))
+    return acc / acc.norm(dim=-1, keepdim=True).clamp_min(torch.finfo(acc.dtype).tiny ** 0.5)

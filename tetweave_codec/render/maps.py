@@ -1,0 +1,78 @@
+"""Mask, depth and normal maps of a mesh: rasterize -> interpolate -> antialias (paper §4.1, §5.1)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor
+
+from .antialias import MeshEdges
+from .antialias import antialias as antialias_silhouettes
+from .cameras import Cameras, image_size
+from .interpolate import face_normals, perspective_barycentrics, vertex_normals
+from .rasterize import Fragments, check_mesh, gather_triangles, pixel_centres, rasterize
+
+NORMAL_MODES = ("flat", "smooth")
+
+
+@dataclass(frozen=True)
+class RenderMaps:
+    """Rendered maps of a batch of views, in the dtype of the vertices.
+
+    mask (B,H,W): 1 on covered pixels, 0 on background, fractional at antialiased silhouettes.
+    depth (B,H,W): camera depth (positive distance along the view axis, world units), 0 on background.
+    normals (B,H,W,3): world-space unit normals, 0 on background (blended, so not unit, at silhouettes).
+    fragments: the rasterization they were made from (face ids, for error splatting and reuse).
+    """
+
+    mask: Tensor
+    depth: Tensor
+    normals: Tensor
+    fragments: Fragments | None = None
+
+
+def render_maps(vertices: Tensor, faces: Tensor, cameras: Cameras, size: int | tuple[int, int],
+                antialias: bool = True, normals: str = "flat", fragments: Fragments | None = None, *,
+                cull_backfaces: bool = False, edges: MeshEdges | None = None) -> RenderMaps:
+    """Render mask, depth and normal maps of a mesh from every camera, differentiable w.r.t. `vertices`.
+
+    vertices (V,3) world positions (float32 or float64; the maps use the same dtype), faces (F,3) long.
+    size: int (square) or (H, W). normals: "flat" (face normals, as in the paper) or "smooth" (interpolated
+    area-weighted vertex normals). antialias: blend silhouette pixels by analytic coverage, which is what
+    gives the mask loss gradients w.r.t. vertex positions. fragments: reuse a rasterization of the same mesh,
+    cameras and size (e.g. from `rasterize` or a previous RenderMaps). cull_backfaces: see `rasterize`.
+    edges: `mesh_edges(faces)`, to reuse the edge topology when rendering the same mesh repeatedly.
+    Under torch.no_grad() (targets from big input meshes) memory stays bounded by the image and chunk sizes.
+    """
+    if normals not in NORMAL_MODES:
+        raise ValueError(f"normals must be one of {NORMAL_MODES}, got {normals!r}")
+    check_mesh(vertices, faces)
+    h, w = image_size(size)
+    faces = faces.to(device=vertices.device, dtype=torch.long)
+    cameras = cameras.to(device=vertices.device)
+    if fragments is None:
+        fragments = rasterize(vertices, faces, cameras, (h, w), cull_backfaces=cull_backfaces)
+    elif tuple(fragments.face_id.shape) != (len(cameras), h, w):
+        raise ValueError("fragments do not match the cameras and size")
+    proj = cameras.project(vertices, (h, w))  # (B,V,3) with gradients
+    n_pix = len(cameras) * h * w
+
+    face_id = fragments.face_id.reshape(-1)
+    pix = (face_id >= 0).nonzero().squeeze(1)
+    fid = face_id.index_select(0, pix)
+    b, px, py = pixel_centres(pix, h, w, vertices.dtype)
+    bary, depth = perspective_barycentrics(gather_triangles(proj, faces, b, fid), px, py)
+    if normals == "flat":
+        nrm = face_normals(vertices, faces).index_select(0, fid)
+    else:
+        vn = vertex_normals(vertices, faces)
+        nrm = (gather_triangles(vn[None], faces, torch.zeros_like(fid), fid) * bary[..., None]).sum(1)
+        nrm = nrm / nrm.norm(dim=-1, keepdim=True).clamp_min(torch.finfo(nrm.dtype).tiny ** 0.5)
+    values = torch.cat([torch.ones_like(depth)[:, None], depth[:, None], nrm], dim=1)  # (N,5)
+    channels = torch.zeros(n_pix, 5, dtype=vertices.dtype, device=vertices.device).index_copy(0, pix, values)
+    channels = channels.view(len(cameras), h, w, 5)
+    if antialias:
+        channels = antialias_silhouettes(channels, fragments.face_id, fragments.depth, vertices, faces,
+                                         cameras, proj, edges)
+    return RenderMaps(channels[..., 0], channels[..., 1], channels[..., 2:], fragments)
