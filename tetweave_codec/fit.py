@@ -37,6 +37,7 @@ from tetweave_codec.initialize import initial_state, random_state
 from tetweave_codec.marching_tets import marching_tets
 from tetweave_codec.resample import resample, voxel_importance
 from tetweave_codec.sh import num_coeffs
+from tetweave_codec.surface_loss import SurfaceTarget
 from tetweave_codec.targets import Targets, render_targets
 
 # Points live in the normalized frame ([-0.9, 0.9]^3 holds the input); the grid may extend a little beyond it so
@@ -84,6 +85,7 @@ class Weights:
     fairness: float = 0.35
     odt: float = 0.1
     sign: float = 1.0
+    surface: float = 1000.0  # 3-D Chamfer against the input (surface_loss.py); 0 = the paper's renders only
 
 
 @dataclass(frozen=True)
@@ -168,19 +170,23 @@ def _extract(params: _Params, grid: _Grid):
 
 
 def _regularized_loss(params: _Params, grid: _Grid, targets: Targets, views: Tensor, schedule: Schedule,
-                      weights: Weights, with_grid_terms: bool) -> tuple[Tensor, dict[str, float]]:
+                      weights: Weights, with_grid_terms: bool, surface: SurfaceTarget | None,
+                      generator: torch.Generator) -> tuple[Tensor, dict[str, float]]:
     """Total loss of one iteration and its parts (floats, for logging)."""
     mt = _extract(params, grid)
     parts: dict[str, float] = {}
     total = losses.sign_loss(params.s, mt.edges) * weights.sign
-    parts["sign"] = float(total)
+    parts["sign"] = float(total.detach())
     if mt.faces.shape[0] > 0:
         cams, target_maps = targets.select(views)
         maps = _render(mt.vertices, mt.faces, cams, schedule.size)
-        recon, recon_parts = losses.reconstruction_loss(
-            maps, target_maps, {"mask": weights.mask, "depth": weights.depth, "normals": weights.normals})
+        recon, recon_parts = _image_loss(maps, target_maps, weights)
         total = total + recon
-        parts.update({k: float(v) for k, v in recon_parts.items()})
+        parts.update(recon_parts)
+        if surface is not None and weights.surface > 0:
+            chamfer = surface.loss(mt.vertices, mt.faces, generator)
+            total = total + weights.surface * chamfer
+            parts["surface"] = float(chamfer.detach())
         if with_grid_terms:
             fair = losses.fairness_loss(mt.vertices, mt.faces) * weights.fairness
             total = total + fair
@@ -191,6 +197,22 @@ def _regularized_loss(params: _Params, grid: _Grid, targets: Targets, views: Ten
         parts["odt"] = float(odt)
     parts["total"] = float(total)
     return total, parts
+
+
+def _image_loss(maps, target_maps, weights: Weights) -> tuple[Tensor, dict[str, float]]:
+    """Paper's L_recons, with depth and normals compared only where both the target and the render see a surface.
+
+    The paper masks depth and normals by the target's mask alone; then a target pixel that the current mesh misses
+    compares the target's depth with the background's 0, an error of ~3 units that outweighs every interior pixel
+    and mostly pushes silhouettes around, which the (antialiased) mask term already does. Depth is compared with
+    |.| as in the paper's reference code (for which lambda_D = 250 was tuned), normals with |.|^2.
+    """
+    both = target_maps.mask * (maps.fragments.face_id >= 0).to(target_maps.mask.dtype)
+    mask = losses.mask_loss(maps.mask, target_maps.mask) * weights.mask
+    depth = losses.depth_loss(maps.depth, target_maps.depth, both, norm="l2") * weights.depth
+    normals = losses.normal_loss(maps.normals, target_maps.normals, both) * weights.normals
+    total = mask + depth + normals
+    return total, {"mask": float(mask), "depth": float(depth), "normals": float(normals)}
 
 
 def _render(vertices: Tensor, faces: Tensor, cameras, size: int):
@@ -239,7 +261,7 @@ def _resample(params: _Params, grid: _Grid, targets: Targets, n_target: int, sch
     return _Params(points.cpu().numpy(), s.cpu().numpy(), c.cpu().numpy(), params.points.device, lr)
 
 
-def _main_stage(params: _Params, targets: Targets, config: FitConfig, backend: str, generator: torch.Generator,
+def _main_stage(params: _Params, targets: Targets, surface: SurfaceTarget | None, config: FitConfig, backend: str, generator: torch.Generator,
                 progress: ProgressFn, history: list) -> _Params:
     sch = config.schedule
     n_events = len(sch.resample_at)
@@ -258,7 +280,8 @@ def _main_stage(params: _Params, targets: Targets, config: FitConfig, backend: s
                 params = _resample(params, grid, targets, events[it], sch, generator, config.lr)
                 grid = _triangulate(params.points, backend)
         views = torch.randperm(len(targets), generator=generator)[:sch.views_per_iter].to(params.points.device)
-        loss, parts = _regularized_loss(params, grid, targets, views, sch, config.weights, with_grid_terms=True)
+        loss, parts = _regularized_loss(params, grid, targets, views, sch, config.weights, with_grid_terms=True,
+                                        surface=surface, generator=generator)
         loss.backward()
         params.opt_sc.step()
         params.opt_sc.zero_grad(set_to_none=True)
@@ -288,7 +311,8 @@ def _finalize_points(params: _Params, backend: str) -> tuple[np.ndarray, np.ndar
     return points16[order], s[keep][order], c[keep][order]
 
 
-def _late_stage(points16: np.ndarray, s: np.ndarray, c: np.ndarray, targets: Targets, config: FitConfig,
+def _late_stage(points16: np.ndarray, s: np.ndarray, c: np.ndarray, targets: Targets,
+                surface: SurfaceTarget | None, config: FitConfig,
                 backend: str, device: torch.device, generator: torch.Generator, progress: ProgressFn,
                 history: list) -> tuple[np.ndarray, np.ndarray]:
     """Optimize s and c on the final (float16) points and their one triangulation; returns float32 s, c."""
@@ -297,7 +321,8 @@ def _late_stage(points16: np.ndarray, s: np.ndarray, c: np.ndarray, targets: Tar
     grid = _triangulate(params.points, backend)
     for it in range(sch.late_iters):
         views = torch.randperm(len(targets), generator=generator)[:sch.views_per_iter].to(device)
-        loss, parts = _regularized_loss(params, grid, targets, views, sch, config.weights, with_grid_terms=False)
+        loss, parts = _regularized_loss(params, grid, targets, views, sch, config.weights, with_grid_terms=False,
+                                        surface=surface, generator=generator)
         loss.backward()
         params.opt_sc.step()
         params.opt_sc.zero_grad(set_to_none=True)
@@ -335,6 +360,7 @@ def fit(vertices: np.ndarray, faces: np.ndarray, config: FitConfig, device: torc
     t0 = time.perf_counter()
     progress("targets", 0, 1, {})
     targets = render_targets(vertices, faces, sch.n_views, sch.size, device=device)
+    surface = SurfaceTarget(vertices, faces, seed=config.seed) if config.weights.surface > 0 else None
     times["targets"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
@@ -350,7 +376,7 @@ def fit(vertices: np.ndarray, faces: np.ndarray, config: FitConfig, device: torc
     times["init"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    params = _main_stage(params, targets, config, backend, generator, progress, history)
+    params = _main_stage(params, targets, surface, config, backend, generator, progress, history)
     times["main"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
@@ -360,7 +386,7 @@ def fit(vertices: np.ndarray, faces: np.ndarray, config: FitConfig, device: torc
     times["finalize"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    s, c = _late_stage(points16, s, c, targets, config, backend, device, generator, progress, history)
+    s, c = _late_stage(points16, s, c, targets, surface, config, backend, device, generator, progress, history)
     times["late"] = time.perf_counter() - t0
     s16, c16 = _round_sc(s, c)
     return FitResult(points16, s16, c16, config.sh_degree, backend, times, history)
