@@ -112,7 +112,7 @@ def antialias(color: Tensor, face_id: Tensor, depth: Tensor, vertices: Tensor, f
     color (B,H,W,C): attributes to antialias (mask, depth, normals, ...), with gradients.
     face_id (B,H,W) long, -1 background; depth (B,H,W) camera depth at the pixel centres (only compared).
     vertices (V,3) world positions and faces (F,3) long of the mesh; cameras: the B views.
-    screen (B,V,3): `cameras.project(vertices, (H, W))`, with gradients w.r.t. the vertices.
+    screen (3,B,V): `cameras.project_planes(vertices, (H, W))`, with gradients w.r.t. the vertices.
     edges: `mesh_edges(faces)`, computed here when None.
     Returns (B,H,W,C): `color` plus the blends; equal to `color` away from silhouettes.
     """
@@ -161,8 +161,8 @@ def _crossings(screen: Tensor, view: Tensor, edge: Tensor, edges: MeshEdges, fac
     t is differentiable w.r.t. `screen`; at most one crossing per pixel pair is returned (the outermost).
     """
     device = screen.device
-    n_verts = screen.shape[1]
-    flat_screen = screen.reshape(-1, 3)
+    n_verts = screen.shape[2]
+    flat_screen = screen.reshape(3, -1).t()  # (B*V,3) rows
     ends = edges.ends.index_select(0, edge)
     va = view * n_verts + ends[:, 0]
     vb = view * n_verts + ends[:, 1]

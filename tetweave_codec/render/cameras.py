@@ -86,14 +86,19 @@ class Cameras:
 
         Points at or behind the camera plane get meaningless screen coordinates; callers cull them by z.
         """
+        return self.project_planes(points, size).permute(1, 2, 0)
+
+    def project_planes(self, points: Tensor, size: int | tuple[int, int]) -> Tensor:
+        """`project` with the coordinate first: (3,B,V) screen x, screen y, camera depth (differentiable)."""
         h, w = image_size(size)
-        cam = self.world_to_camera(points)
+        rot = self.rotation.to(points.dtype)
+        cam = torch.matmul(rot, points.t()) - (rot @ self.eye.to(points.dtype)[:, :, None])  # (B,3,V)
         f = self.focal(h)
-        z = cam[..., 2]
+        z = cam[:, 2]
         inv_z = 1.0 / torch.where(z.abs() > 1e-12, z, torch.full_like(z, 1e-12))
-        sx = cam[..., 0] * inv_z * f + 0.5 * w
-        sy = cam[..., 1] * inv_z * f + 0.5 * h
-        return torch.stack([sx, sy, z], dim=-1)
+        sx = torch.addcmul(torch.full_like(z, 0.5 * w), cam[:, 0], inv_z, value=f)
+        sy = torch.addcmul(torch.full_like(z, 0.5 * h), cam[:, 1], inv_z, value=f)
+        return torch.stack([sx, sy, z])
 
     def pixel_rays(self, size: int | tuple[int, int]) -> Tensor:
         """World-space directions (B,H,W,3) through the pixel centres, scaled so that their camera z is 1.

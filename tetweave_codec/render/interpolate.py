@@ -11,21 +11,19 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from .rasterize import EDGE_END, EDGE_START
 
-
-def perspective_barycentrics(tri: Tensor, px: Tensor, py: Tensor) -> tuple[Tensor, Tensor]:
+def perspective_barycentrics(x: Tensor, y: Tensor, z: Tensor, px: Tensor,
+                             py: Tensor) -> tuple[Tensor, Tensor]:
     """Perspective-correct barycentrics and depth of pixel centres inside triangles (differentiable).
 
-    tri (N,3,3): per pixel, the triangle's three vertices as (screen x, screen y, camera depth z);
+    x, y, z (N,3): per pixel, the screen x, screen y and camera depth of its triangle's three vertices;
     px, py (N,): the pixel centres in screen coordinates.
     Returns bary (N,3) (sums to 1) and depth (N,) (camera depth of the surface point seen through the pixel).
     """
-    x, y, z = tri.unbind(-1)  # (N,3) each
     dx, dy = x - px[:, None], y - py[:, None]
-    s, e = list(EDGE_START), list(EDGE_END)
-    # Twice the signed area of (pixel, edge start, edge end): the screen barycentric of vertex k times area
-    sub = dx[:, s] * dy[:, e] - dy[:, s] * dx[:, e]  # (N,3)
+    # Twice the signed area of (pixel, edge start, edge end) for edge k from vertex k+1 to k+2 (mod 3, see
+    # rasterize.EDGE_START): the screen barycentric of vertex k times twice the triangle's area.
+    sub = dx.roll(-1, 1) * dy.roll(-2, 1) - dy.roll(-1, 1) * dx.roll(-2, 1)  # (N,3)
     area = sub.sum(-1)
     weighted = sub / z
     denom = weighted.sum(-1)

@@ -55,24 +55,25 @@ def render_maps(vertices: Tensor, faces: Tensor, cameras: Cameras, size: int | t
         fragments = rasterize(vertices, faces, cameras, (h, w), cull_backfaces=cull_backfaces)
     elif tuple(fragments.face_id.shape) != (len(cameras), h, w):
         raise ValueError("fragments do not match the cameras and size")
-    proj = cameras.project(vertices, (h, w))  # (B,V,3) with gradients
+    planes = cameras.project_planes(vertices, (h, w))  # (3,B,V) with gradients
     n_pix = len(cameras) * h * w
 
     face_id = fragments.face_id.reshape(-1)
     pix = (face_id >= 0).nonzero().squeeze(1)
     fid = face_id.index_select(0, pix)
     b, px, py = pixel_centres(pix, h, w, vertices.dtype)
-    bary, depth = perspective_barycentrics(gather_triangles(proj, faces, b, fid), px, py)
+    bary, depth = perspective_barycentrics(*gather_triangles(planes, faces, b, fid), px, py)
     if normals == "flat":
         nrm = face_normals(vertices, faces).index_select(0, fid)
     else:
-        vn = vertex_normals(vertices, faces)
-        nrm = (gather_triangles(vn[None], faces, torch.zeros_like(fid), fid) * bary[..., None]).sum(1)
+        vn = vertex_normals(vertices, faces).t()[:, None, :]  # (3,1,V)
+        corners = gather_triangles(vn, faces, torch.zeros_like(fid), fid)
+        nrm = torch.stack([(c * bary).sum(1) for c in corners], dim=1)
         nrm = nrm / nrm.norm(dim=-1, keepdim=True).clamp_min(torch.finfo(nrm.dtype).tiny ** 0.5)
     values = torch.cat([torch.ones_like(depth)[:, None], depth[:, None], nrm], dim=1)  # (N,5)
     channels = torch.zeros(n_pix, 5, dtype=vertices.dtype, device=vertices.device).index_copy(0, pix, values)
     channels = channels.view(len(cameras), h, w, 5)
     if antialias:
         channels = antialias_silhouettes(channels, fragments.face_id, fragments.depth, vertices, faces,
-                                         cameras, proj, edges)
+                                         cameras, planes, edges)
     return RenderMaps(channels[..., 0], channels[..., 1], channels[..., 2:], fragments)

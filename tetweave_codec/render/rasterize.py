@@ -86,14 +86,14 @@ def rasterize(vertices: Tensor, faces: Tensor, cameras: Cameras, size: int | tup
     device = vertices.device
     faces = faces.to(device=device, dtype=torch.long)
     with torch.no_grad():
-        proj = cameras.to(device=device).project(vertices.detach(), (h, w))  # (B,V,3), input dtype
-        planes = proj.to(torch.float32).permute(0, 2, 1).contiguous()  # (B,3,V): x, y, z rows per view
+        proj = cameras.to(device=device).project_planes(vertices.detach(), (h, w))  # (3,B,V), input dtype
+        planes = proj.to(torch.float32)
         keys = torch.full((n_views * h * w,), BACKGROUND_KEY, dtype=torch.int64, device=device)
         for start in range(0, faces.shape[0], FACE_CHUNK):
             chunk = faces[start:start + FACE_CHUNK]
             flat = chunk.t().reshape(-1)  # (3Fc,): all first vertices, then all second, then all third
             for view in range(n_views):
-                setup = _setup_view(planes[view], flat, start, view, h, w, near, cull_backfaces)
+                setup = _setup_view(planes[:, view], flat, start, view, h, w, near, cull_backfaces)
                 for level, coef, ints in setup:
                     step = max(1, CANDIDATE_CHUNK >> (2 * level))
                     for i in range(0, coef.shape[1], step):
@@ -207,31 +207,31 @@ def _cover_group(coef: Tensor, ints: list[Tensor], level: int, w: int, keys: Ten
     keys.scatter_reduce_(0, pixel, key, reduce="amin")
 
 
-def _fragment_attributes(proj: Tensor, faces: Tensor, face_id: Tensor, h: int,
+def _fragment_attributes(planes: Tensor, faces: Tensor, face_id: Tensor, h: int,
                          w: int) -> tuple[Tensor, Tensor]:
     """Perspective-correct barycentrics (B*H*W,3) and depth (B*H*W,) at covered pixel centres, 0 elsewhere."""
     from .interpolate import perspective_barycentrics
 
-    bary = torch.zeros(face_id.numel(), 3, dtype=proj.dtype, device=proj.device)
-    depth = torch.zeros(face_id.numel(), dtype=proj.dtype, device=proj.device)
+    bary = torch.zeros(face_id.numel(), 3, dtype=planes.dtype, device=planes.device)
+    depth = torch.zeros(face_id.numel(), dtype=planes.dtype, device=planes.device)
     pix = (face_id >= 0).nonzero().squeeze(1)
     if pix.numel():
-        b, px, py = pixel_centres(pix, h, w, proj.dtype)
-        tri = gather_triangles(proj, faces, b, face_id.index_select(0, pix))
-        pix_bary, pix_depth = perspective_barycentrics(tri, px, py)
+        b, px, py = pixel_centres(pix, h, w, planes.dtype)
+        x, y, z = gather_triangles(planes, faces, b, face_id.index_select(0, pix))
+        pix_bary, pix_depth = perspective_barycentrics(x, y, z, px, py)
         bary.index_copy_(0, pix, pix_bary)
         depth.index_copy_(0, pix, pix_depth)
     return bary, depth
 
 
-def gather_triangles(per_view: Tensor, faces: Tensor, view: Tensor, face: Tensor) -> Tensor:
-    """per_view (B,V,C) vertex data, view (N,), face (N,) -> (N,3,C): the data of face's vertices in view.
-
-    One flat index_select (differentiable; much faster on CPU than advanced indexing).
-    """
-    n_verts, channels = per_view.shape[1], per_view.shape[2]
+def gather_triangles(planes: Tensor, faces: Tensor, view: Tensor, face: Tensor) -> list[Tensor]:
+    """planes (C,B,V) per-view vertex data, view (N,), face (N,) -> C tensors (N,3): the data of the three
+    vertices of `face` in `view`. Flat index_selects: differentiable, and much faster on CPU than advanced
+    indexing."""
+    n_verts = planes.shape[2]
     rows = (faces.index_select(0, face) + (view * n_verts)[:, None]).view(-1)
-    return per_view.reshape(-1, channels).index_select(0, rows).view(-1, 3, channels)
+    flat = planes.reshape(planes.shape[0], -1)
+    return [flat[c].index_select(0, rows).view(-1, 3) for c in range(planes.shape[0])]
 
 
 def pixel_centres(pixel: Tensor, h: int, w: int, dtype: torch.dtype) -> tuple[Tensor, Tensor, Tensor]:
