@@ -356,21 +356,72 @@ def comparable_rows(rows: Sequence[dict]) -> list[dict]:
     return chosen
 
 
-def _render_views(vertices: np.ndarray, faces: np.ndarray, scale: float, offset: np.ndarray, size: int):
-    """(2,H,W,3) uint8: a 3/4 view of the whole shape and a close-up from the same side (input's frame)."""
+VIEW_CANDIDATES = 24  # Fibonacci directions tried for the overview
+VIEW_RADIUS = 3.2  # camera distance from the centre of the normalized frame
+CLOSE_UP_FOV = 14.0  # degrees; the overview uses 45
+
+
+def _local_detail(normals, mask, window: int):
+    """Normal change per pixel (to the right and below), box-filtered over `window` pixels: (H,W), 0 where the
+    window is not entirely on the surface (a close-up of a silhouette would show mostly background)."""
     import torch
 
-    from tetweave_codec.render import look_at_cameras, render_maps, shade
+    h, w = mask.shape
+    n = normals * mask[..., None]
+    change = torch.zeros((h, w), dtype=normals.dtype)
+    change[:, :-1] += (n[:, 1:] - n[:, :-1]).norm(dim=-1)
+    change[:-1, :] += (n[1:, :] - n[:-1, :]).norm(dim=-1)
+    pool = torch.nn.functional.avg_pool2d
+    full = pool(mask[None, None], window, stride=1, padding=window // 2)[0, 0, :h, :w]
+    detail = pool(change[None, None], window, stride=1, padding=window // 2)[0, 0, :h, :w]
+    return torch.where(full > 0.999, detail, torch.zeros_like(detail))
 
-    eye = torch.tensor([1.5, 1.0, 2.5], dtype=torch.float64)
-    eye = eye / eye.norm() * 3.2
-    v = torch.as_tensor((np.asarray(vertices, dtype=np.float64) - offset) / scale, dtype=torch.float32)
+
+def choose_cameras(vertices: np.ndarray, faces: np.ndarray, size: int = 96):
+    """Cameras [overview, close-up] for pictures of a mesh in the normalized frame.
+
+    The overview looks at the centre from the candidate direction (a Fibonacci sphere, not from below) whose
+    normal map varies most over the covered area; the close-up looks, from the same eye, at the surface point
+    where a window half the low-resolution image wide has the most normal change (the most detail).
+    """
+    import torch
+
+    from tetweave_codec.render import fibonacci_cameras, look_at_cameras, render_maps
+
+    v = torch.as_tensor(vertices, dtype=torch.float32)
+    f = torch.as_tensor(np.asarray(faces, dtype=np.int64))
+    cams = fibonacci_cameras(VIEW_CANDIDATES, radius=VIEW_RADIUS)
+    cams = cams[cams.eye[:, 1] > -0.35 * VIEW_RADIUS]
+    with torch.no_grad():
+        maps = render_maps(v, f, cams, size, antialias=False)
+        mask = maps.mask
+        count = mask.sum(dim=(1, 2)).clamp_min(1.0)
+        mean = (maps.normals * mask[..., None]).sum(dim=(1, 2)) / count[:, None]
+        spread = (((maps.normals - mean[:, None, None]) ** 2).sum(-1) * mask).sum(dim=(1, 2)) / count
+        best = int(torch.argmax(spread * mask.mean(dim=(1, 2))))
+        eye = cams.eye[best : best + 1]
+        overview = look_at_cameras(eye, fov_deg=45.0)
+        big = render_maps(v, f, overview, 2 * size, antialias=False)
+        detail = _local_detail(big.normals[0], big.mask[0], max(3, size // 2) | 1)
+        target = torch.zeros(3)
+        if float(detail.max()) > 0:
+            iy, ix = divmod(int(torch.argmax(detail)), detail.shape[1])
+            target = overview.backproject(big.depth)[0, iy, ix]
+    return [overview, look_at_cameras(eye, target=target, fov_deg=CLOSE_UP_FOV)]
+
+
+def _render_views(vertices: np.ndarray, faces: np.ndarray, cameras, size: int) -> np.ndarray:
+    """(len(cameras),H,W,3) uint8 Lambert-shaded renders of a mesh given in the normalized frame."""
+    import torch
+
+    from tetweave_codec.render import render_maps, shade
+
+    v = torch.as_tensor(np.asarray(vertices, dtype=np.float64), dtype=torch.float32)
     f = torch.as_tensor(np.asarray(faces, dtype=np.int64))
     images = []
-    for fov in (45.0, 14.0):
-        cams = look_at_cameras(eye[None].float(), fov_deg=fov)
+    for cam in cameras:
         with torch.no_grad():
-            images.append(shade(render_maps(v, f, cams, size), cams)[0].numpy())
+            images.append(shade(render_maps(v, f, cam, size), cam)[0].numpy())
     return np.stack(images)
 
 
@@ -390,17 +441,22 @@ def side_by_side(result: MeshResult, rows: Sequence[dict], path: str | Path, siz
     if not chosen:
         return False
     scale, offset = normalization(result.vertices)
+
+    def frame(v: np.ndarray) -> np.ndarray:
+        return (np.asarray(v, dtype=np.float64) - offset) / scale
+
+    cameras = choose_cameras(frame(result.vertices), result.faces)
     panels = [
         (
             "input",
             f"{len(result.faces):,} faces",
-            _render_views(result.vertices, result.faces, scale, offset, size),
+            _render_views(frame(result.vertices), result.faces, cameras, size),
         )
     ]
     for r in chosen:
         v, f = result.decoded[f"{r['family']} {r['setting']}"]
         caption = f"{_num(r['bytes']):,.0f} B, CD {_num(r['chamfer']):.2g}\n{len(f):,} faces"
-        panels.append((f"{r['family']} {r['setting']}", caption, _render_views(v, f, scale, offset, size)))
+        panels.append((f"{r['family']} {r['setting']}", caption, _render_views(frame(v), f, cameras, size)))
     fig, axes = plt.subplots(2, len(panels), figsize=(2.6 * len(panels), 5.6), squeeze=False)
     for col, (title, caption, views) in enumerate(panels):
         for row in range(2):

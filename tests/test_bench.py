@@ -312,3 +312,17 @@ def test_tetweave_method_through_the_batch():
     assert row["chamfer"] < 0.05
     v2, f2 = result.decoded[method.name]
     assert len(f2) == row["n_faces"]
+
+
+def test_picture_cameras_see_three_faces_of_a_box_and_close_up_on_its_surface():
+    v, f = _mesh(manifold3d.Manifold.cube([1.6, 1.6, 1.6], center=True))
+    overview, close_up = report.choose_cameras(v, f)
+    direction = overview.eye[0].numpy() / np.linalg.norm(overview.eye[0].numpy())
+    assert np.all(np.abs(direction) > 0.25)  # oblique: three faces in view, not one flat side
+    # the close-up looks from the same eye at a point of the box (where the creases are)
+    assert np.allclose(close_up.eye.numpy(), overview.eye.numpy())
+    forward = close_up.rotation[0, 2].numpy()  # rows of the rotation: right, down, forward
+    hits = close_up.eye[0].numpy() + forward[None, :] * np.linspace(0, 5, 5001)[:, None]
+    on_surface = np.max(np.abs(hits), axis=1) <= 0.8 + 1e-3
+    assert on_surface.any()  # the close-up ray hits the box
+    assert close_up.fov_deg < overview.fov_deg
