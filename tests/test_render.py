@@ -357,9 +357,7 @@ def test_mask_loss_gradient_at_silhouette_vertices(device):
         return (maps.mask - target).abs().mean()
 
     v = verts.clone().requires_grad_(True)
-    no_aa = mask_loss(v, antialias=False)
-    plain = torch.autograd.grad(no_aa, v, allow_unused=True, materialize_grads=True)[0]
-    assert plain.abs().max() == 0  # without antialiasing the mask has no gradient at all
+    assert not mask_loss(v, antialias=False).requires_grad  # without antialiasing the mask has no gradient
     (grad,) = torch.autograd.grad(mask_loss(v), v)
     moved = grad.norm(dim=1) > 1e-3 * grad.norm(dim=1).max()
     assert moved.sum() >= 8

@@ -27,6 +27,7 @@ The colours keep their own gradients; `t` adds the gradients w.r.t. the silhouet
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -34,6 +35,7 @@ import torch
 from torch import Tensor
 
 from .cameras import Cameras
+from .interpolate import face_cross
 from .rasterize import NEAR
 
 DEPTH_TOLERANCE = 1e-4  # relative: how much farther than the edge the outer pixel must be to lie behind it
@@ -105,36 +107,40 @@ def _argsort(key: Tensor, key_bound: int) -> Tensor:
     return torch.sort(key, stable=True).indices
 
 
-def antialias(color: Tensor, face_id: Tensor, depth: Tensor, vertices: Tensor, faces: Tensor,
-              cameras: Cameras, screen: Tensor, edges: MeshEdges | None = None) -> Tensor:
+def antialias(colors: Sequence[Tensor], face_id: Tensor, depth: Tensor, vertices: Tensor, faces: Tensor,
+              cameras: Cameras, screen: Tensor, edges: MeshEdges | None = None) -> list[Tensor]:
     """Blend pixels across visible silhouette edges by their analytic coverage (differentiable).
 
-    color (B,H,W,C): attributes to antialias (mask, depth, normals, ...), with gradients.
+    colors: images to antialias (mask, depth, normals, ...), each (B,H,W) or (B,H,W,C), with gradients.
     face_id (B,H,W) long, -1 background; depth (B,H,W) camera depth at the pixel centres (only compared).
     vertices (V,3) world positions and faces (F,3) long of the mesh; cameras: the B views.
     screen (3,B,V): `cameras.project_planes(vertices, (H, W))`, with gradients w.r.t. the vertices.
     edges: `mesh_edges(faces)`, computed here when None.
-    Returns (B,H,W,C): `color` plus the blends; equal to `color` away from silhouettes.
+    Returns the images plus the blends, in the same order; equal to the inputs away from silhouettes.
     """
-    n_views, h, w, channels = color.shape
+    n_views, h, w = face_id.shape
+    colors = list(colors)
     if faces.shape[0] == 0:
-        return color
+        return colors
     if edges is None:
         edges = mesh_edges(faces, vertices.shape[0])
     view, edge = _silhouette_edges(vertices.detach(), faces, cameras, edges)
     if edge.numel() == 0:
-        return color
+        return colors
     crossing = _crossings(screen, view, edge, edges, face_id, depth, h, w)
     if crossing is None:
-        return color
+        return colors
     inner, outer, t = crossing
     alpha = 0.5 - t.clamp(0.0, 1.0)  # > 0: the edge lies before the midpoint: the inner pixel is partly bare
     target = torch.where(alpha > 0, inner, outer)
     source = torch.where(alpha > 0, outer, inner)
-    flat = color.reshape(-1, channels)
-    diff = flat.index_select(0, source) - flat.index_select(0, target)
-    blend = alpha.abs().to(color.dtype)[:, None] * diff
-    return flat.index_add(0, target, blend).view(n_views, h, w, channels)
+    weight = alpha.abs()
+    out = []
+    for color in colors:
+        flat = color.reshape(n_views * h * w, -1)
+        diff = flat.index_select(0, source) - flat.index_select(0, target)
+        out.append(flat.index_add(0, target, weight.to(color.dtype)[:, None] * diff).view(color.shape))
+    return out
 
 
 def _silhouette_edges(vertices: Tensor, faces: Tensor, cameras: Cameras,
@@ -142,8 +148,7 @@ def _silhouette_edges(vertices: Tensor, faces: Tensor, cameras: Cameras,
     """(view, edge) index pairs (S,) of the silhouette edges of every view (no gradient)."""
     with torch.no_grad():
         v0 = vertices.index_select(0, faces[:, 0])
-        normal = torch.linalg.cross(vertices.index_select(0, faces[:, 1]) - v0,
-                                    vertices.index_select(0, faces[:, 2]) - v0, dim=-1)
+        normal = face_cross(vertices, faces)
         eyes = cameras.eye.to(vertices.dtype)
         facing = (eyes @ normal.t()) > (normal * v0).sum(-1)  # (B,F): front side towards the camera
         f1, f2 = edges.faces[:, 0], edges.faces[:, 1]

@@ -35,16 +35,28 @@ def perspective_barycentrics(x: Tensor, y: Tensor, z: Tensor, px: Tensor,
     return bary, depth
 
 
+def face_cross(vertices: Tensor, faces: Tensor) -> Tensor:
+    """(v1 - v0) x (v2 - v0) per face (F,3): the right-hand normal scaled by twice the face's area."""
+    v0 = vertices.index_select(0, faces[:, 0])
+    e1 = vertices.index_select(0, faces[:, 1]) - v0
+    e2 = vertices.index_select(0, faces[:, 2]) - v0
+    return torch.linalg.cross(e1, e2, dim=-1)
+
+
+def _normalized(v: Tensor) -> Tensor:
+    """Rows of v (...,3) scaled to unit length (zero rows stay zero)."""
+    return v * torch.rsqrt((v * v).sum(-1, keepdim=True).clamp_min(torch.finfo(v.dtype).tiny))
+
+
 def face_normals(vertices: Tensor, faces: Tensor) -> Tensor:
     """Unit normals (F,3) of faces (F,3) by the right-hand rule (zero for degenerate faces)."""
-    v0, v1, v2 = vertices[faces[:, 0]], vertices[faces[:, 1]], vertices[faces[:, 2]]
-    n = torch.linalg.cross(v1 - v0, v2 - v0, dim=-1)
-    return n / n.norm(dim=-1, keepdim=True).clamp_min(torch.finfo(n.dtype).tiny ** 0.5)
+    return _normalized(face_cross(vertices, faces))
 
 
 def vertex_normals(vertices: Tensor, faces: Tensor) -> Tensor:
     """Unit area-weighted vertex normals (V,3) (zero for unreferenced vertices)."""
-    v0, v1, v2 = vertices[faces[:, 0]], vertices[faces[:, 1]], vertices[faces[:, 2]]
-    n = torch.linalg.cross(v1 - v0, v2 - v0, dim=-1)  # length = 2 * area: area weighting for free
-    acc = torch.zeros_like(vertices).index_add(0, faces.reshape(-1), n.repeat_interleave(3, dim=0))
-    return acc / acc.norm(dim=-1, keepdim=True).clamp_min(torch.finfo(acc.dtype).tiny ** 0.5)
+    n = face_cross(vertices, faces)  # length = 2 * area: area weighting for free
+    acc = torch.zeros_like(vertices)
+    for k in range(3):
+        acc = acc.index_add(0, faces[:, k], n)
+    return _normalized(acc)

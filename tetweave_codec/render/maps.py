@@ -69,11 +69,14 @@ def render_maps(vertices: Tensor, faces: Tensor, cameras: Cameras, size: int | t
         vn = vertex_normals(vertices, faces).t()[:, None, :]  # (3,1,V)
         corners = gather_triangles(vn, faces, torch.zeros_like(fid), fid)
         nrm = torch.stack([(c * bary).sum(1) for c in corners], dim=1)
-        nrm = nrm / nrm.norm(dim=-1, keepdim=True).clamp_min(torch.finfo(nrm.dtype).tiny ** 0.5)
-    values = torch.cat([torch.ones_like(depth)[:, None], depth[:, None], nrm], dim=1)  # (N,5)
-    channels = torch.zeros(n_pix, 5, dtype=vertices.dtype, device=vertices.device).index_copy(0, pix, values)
-    channels = channels.view(len(cameras), h, w, 5)
+        nrm = nrm * torch.rsqrt((nrm * nrm).sum(-1, keepdim=True).clamp_min(torch.finfo(nrm.dtype).tiny))
+    shape = (len(cameras), h, w)
+    zeros = torch.zeros(n_pix, dtype=vertices.dtype, device=vertices.device)
+    mask_img = zeros.clone().index_fill_(0, pix, 1.0).view(shape)
+    depth_img = zeros.index_copy(0, pix, depth).view(shape)
+    normal_img = zeros[:, None].expand(n_pix, 3).index_copy(0, pix, nrm).view(*shape, 3)
     if antialias:
-        channels = antialias_silhouettes(channels, fragments.face_id, fragments.depth, vertices, faces,
-                                         cameras, planes, edges)
-    return RenderMaps(channels[..., 0], channels[..., 1], channels[..., 2:], fragments)
+        mask_img, depth_img, normal_img = antialias_silhouettes(
+            [mask_img, depth_img, normal_img], fragments.face_id, fragments.depth, vertices, faces, cameras,
+            planes, edges)
+    return RenderMaps(mask_img, depth_img, normal_img, fragments)
