@@ -7,7 +7,6 @@ import time
 from pathlib import Path
 
 import click
-
 from tetweave_codec.cli.common import CountType, configure_torch, device_option, threads_option
 
 STAGE_NAMES = {"main": "main stage", "late": "late stage"}
@@ -26,7 +25,8 @@ def _progress_bar(total: int):
         if stage == "main":
             state["main_total"] = stage_total
         position = offset + done
-        text = f"{STAGE_NAMES[stage]} {done}/{stage_total}  loss {info.get('loss', 0):.4g}  points {info.get('points', 0)}"
+        loss, points = info.get("loss", 0.0), info.get("points", 0)
+        text = f"{STAGE_NAMES[stage]} {done}/{stage_total}  loss {loss:.4g}  points {points}"
         bar.update(position - state["last"], current_item=text)
         state["last"] = position
 
