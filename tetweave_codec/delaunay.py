@@ -35,7 +35,6 @@ Guarantees of `delaunay` / `tetrahedralize`:
 
 from __future__ import annotations
 
-from fractions import Fraction
 from typing import NamedTuple
 
 import numpy as np
@@ -275,13 +274,12 @@ def orientation(points: np.ndarray, tets: np.ndarray) -> np.ndarray:
 
 
 def _exact_orientation(corners: np.ndarray) -> int:
-    a, b, c, d = ([Fraction(float(x)) for x in row] for row in corners)
-    u = [b[k] - a[k] for k in range(3)]
-    v = [c[k] - a[k] for k in range(3)]
-    w = [d[k] - a[k] for k in range(3)]
-    det = (
-        u[0] * (v[1] * w[2] - v[2] * w[1])
-        + u[1] * (v[2] * w[0] - v[0] * w[2])
-        + u[2] * (v[0] * w[1] - v[1] * w[0])
-    )
+    """Sign of det[b - a, c - a, d - a] for the (4, 3) float64 corners, in exact integer arithmetic."""
+    ratios = [float(x).as_integer_ratio() for x in corners.ravel().tolist()]
+    scale = max(den for _, den in ratios)  # a power of two: every coordinate becomes an integer multiple of 1/scale
+    a0, a1, a2, b0, b1, b2, c0, c1, c2, d0, d1, d2 = (num * (scale // den) for num, den in ratios)
+    u0, u1, u2 = b0 - a0, b1 - a1, b2 - a2
+    v0, v1, v2 = c0 - a0, c1 - a1, c2 - a2
+    w0, w1, w2 = d0 - a0, d1 - a1, d2 - a2
+    det = u0 * (v1 * w2 - v2 * w1) + u1 * (v2 * w0 - v0 * w2) + u2 * (v0 * w1 - v1 * w0)
     return (det > 0) - (det < 0)
