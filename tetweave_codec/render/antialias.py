@@ -38,6 +38,7 @@ from .cameras import Cameras
 from .interpolate import face_cross
 from .rasterize import NEAR
 
+VIEW_BITS = 62  # views whose facings share one int64 per face
 DEPTH_TOLERANCE = 1e-4  # relative: how much farther than the edge the outer pixel must be to lie behind it
 
 
@@ -108,7 +109,8 @@ def _argsort(key: Tensor, key_bound: int) -> Tensor:
 
 
 def antialias(colors: Sequence[Tensor], face_id: Tensor, depth: Tensor, vertices: Tensor, faces: Tensor,
-              cameras: Cameras, screen: Tensor, edges: MeshEdges | None = None) -> list[Tensor]:
+              cameras: Cameras, screen: Tensor, edges: MeshEdges | None = None,
+              normals: Tensor | None = None) -> list[Tensor]:
     """Blend pixels across visible silhouette edges by their analytic coverage (differentiable).
 
     colors: images to antialias (mask, depth, normals, ...), each (B,H,W) or (B,H,W,C), with gradients.
@@ -116,6 +118,7 @@ def antialias(colors: Sequence[Tensor], face_id: Tensor, depth: Tensor, vertices
     vertices (V,3) world positions and faces (F,3) long of the mesh; cameras: the B views.
     screen (3,B,V): `cameras.project_planes(vertices, (H, W))`, with gradients w.r.t. the vertices.
     edges: `mesh_edges(faces)`, computed here when None.
+    normals: `face_cross(vertices, faces)` (or any positive multiple of the face normals), computed when None.
     Returns the images plus the blends, in the same order; equal to the inputs away from silhouettes.
     """
     n_views, h, w = face_id.shape
@@ -124,7 +127,9 @@ def antialias(colors: Sequence[Tensor], face_id: Tensor, depth: Tensor, vertices
         return colors
     if edges is None:
         edges = mesh_edges(faces, vertices.shape[0])
-    view, edge = _silhouette_edges(vertices.detach(), faces, cameras, edges)
+    if normals is None:
+        normals = face_cross(vertices.detach(), faces)
+    view, edge = _silhouette_edges(vertices.detach(), faces, normals.detach(), cameras, edges)
     if edge.numel() == 0:
         return colors
     crossing = _crossings(screen, view, edge, edges, face_id, depth, h, w)
@@ -143,20 +148,39 @@ def antialias(colors: Sequence[Tensor], face_id: Tensor, depth: Tensor, vertices
     return out
 
 
-def _silhouette_edges(vertices: Tensor, faces: Tensor, cameras: Cameras,
+def _silhouette_edges(vertices: Tensor, faces: Tensor, normals: Tensor, cameras: Cameras,
                       edges: MeshEdges) -> tuple[Tensor, Tensor]:
-    """(view, edge) index pairs (S,) of the silhouette edges of every view (no gradient)."""
+    """(view, edge) index pairs (S,) of the silhouette edges of every view (no gradient).
+
+    The facing of every face in up to VIEW_BITS views is packed into the bits of one int64, so that an edge
+    needs two gathers for all those views together.
+    """
+    views, edge_list = [], []
     with torch.no_grad():
-        v0 = vertices.index_select(0, faces[:, 0])
-        normal = face_cross(vertices, faces)
-        eyes = cameras.eye.to(vertices.dtype)
-        facing = (eyes @ normal.t()) > (normal * v0).sum(-1)  # (B,F): front side towards the camera
+        offset = (normals * vertices.index_select(0, faces[:, 0])).sum(-1, keepdim=True)  # (F,1)
         f1, f2 = edges.faces[:, 0], edges.faces[:, 1]
-        front1 = facing.index_select(1, f1)
-        front2 = facing.index_select(1, f2.clamp_min(0))
-        silhouette = ((front1 != front2) == edges.consistent) | (f2 < 0)  # (B,E)
-        view, edge = silhouette.nonzero(as_tuple=True)
-    return view, edge
+        for start in range(0, len(cameras), VIEW_BITS):
+            eyes = cameras.eye[start:start + VIEW_BITS].to(vertices.dtype)
+            n_views = eyes.shape[0]
+            bit = torch.ones((), dtype=torch.int64, device=faces.device) << torch.arange(n_views,
+                                                                                     device=faces.device)
+            facing = ((normals @ eyes.t() > offset).long() * bit).sum(1)  # (F,): bit b: front side faces view b
+            differ = facing.index_select(0, f1) ^ facing.index_select(0, f2.clamp_min(0))
+            every = (1 << n_views) - 1
+            # A fold: the facings differ across a consistently oriented edge, or agree across an inconsistent
+            # one. Boundary edges are silhouettes in every view.
+            silhouette = torch.where(edges.consistent, differ, differ ^ every)
+            silhouette = torch.where(f2 < 0, every, silhouette)
+            some = silhouette.nonzero().squeeze(1)
+            bits = silhouette.index_select(0, some)
+            for b in range(n_views):
+                hit = some.index_select(0, ((bits >> b) & 1).nonzero().squeeze(1))
+                views.append(torch.full_like(hit, start + b))
+                edge_list.append(hit)
+    if not edge_list:
+        empty = torch.empty(0, dtype=torch.long, device=faces.device)
+        return empty, empty
+    return torch.cat(views), torch.cat(edge_list)
 
 
 def _crossings(screen: Tensor, view: Tensor, edge: Tensor, edges: MeshEdges, face_id: Tensor, depth: Tensor,

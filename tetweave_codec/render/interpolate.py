@@ -43,20 +43,20 @@ def face_cross(vertices: Tensor, faces: Tensor) -> Tensor:
     return torch.linalg.cross(e1, e2, dim=-1)
 
 
-def _normalized(v: Tensor) -> Tensor:
-    """Rows of v (...,3) scaled to unit length (zero rows stay zero)."""
+def unit_vectors(v: Tensor) -> Tensor:
+    """Vectors v (...,3) scaled to unit length (zero vectors stay zero)."""
     return v * torch.rsqrt((v * v).sum(-1, keepdim=True).clamp_min(torch.finfo(v.dtype).tiny))
 
 
 def face_normals(vertices: Tensor, faces: Tensor) -> Tensor:
     """Unit normals (F,3) of faces (F,3) by the right-hand rule (zero for degenerate faces)."""
-    return _normalized(face_cross(vertices, faces))
+    return unit_vectors(face_cross(vertices, faces))
 
 
-def vertex_normals(vertices: Tensor, faces: Tensor) -> Tensor:
-    """Unit area-weighted vertex normals (V,3) (zero for unreferenced vertices)."""
-    n = face_cross(vertices, faces)  # length = 2 * area: area weighting for free
+def vertex_normals(vertices: Tensor, faces: Tensor, cross: Tensor | None = None) -> Tensor:
+    """Unit area-weighted vertex normals (V,3) (zero for unreferenced vertices); cross: `face_cross`."""
+    n = face_cross(vertices, faces) if cross is None else cross  # length = 2 * area: area weighting for free
     acc = torch.zeros_like(vertices)
     for k in range(3):
         acc = acc.index_add(0, faces[:, k], n)
-    return _normalized(acc)
+    return unit_vectors(acc)

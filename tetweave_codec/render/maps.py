@@ -10,8 +10,8 @@ from torch import Tensor
 from .antialias import MeshEdges
 from .antialias import antialias as antialias_silhouettes
 from .cameras import Cameras, image_size
-from .interpolate import face_normals, perspective_barycentrics, vertex_normals
-from .rasterize import Fragments, check_mesh, gather_triangles, pixel_centres, rasterize
+from .interpolate import face_cross, perspective_barycentrics, unit_vectors, vertex_normals
+from .rasterize import Fragments, check_mesh, gather_triangles, pixel_centres, zbuffer
 
 NORMAL_MODES = ("flat", "smooth")
 
@@ -51,32 +51,38 @@ def render_maps(vertices: Tensor, faces: Tensor, cameras: Cameras, size: int | t
     h, w = image_size(size)
     faces = faces.to(device=vertices.device, dtype=torch.long)
     cameras = cameras.to(device=vertices.device)
+    planes = cameras.project_planes(vertices, (h, w))  # (3,B,V) with gradients
     if fragments is None:
-        fragments = rasterize(vertices, faces, cameras, (h, w), cull_backfaces=cull_backfaces)
+        face_id = zbuffer(planes, faces, h, w, cull_backfaces=cull_backfaces)
     elif tuple(fragments.face_id.shape) != (len(cameras), h, w):
         raise ValueError("fragments do not match the cameras and size")
-    planes = cameras.project_planes(vertices, (h, w))  # (3,B,V) with gradients
+    else:
+        face_id = fragments.face_id
+    shape = (len(cameras), h, w)
     n_pix = len(cameras) * h * w
 
-    face_id = fragments.face_id.reshape(-1)
+    face_id = face_id.reshape(-1)
     pix = (face_id >= 0).nonzero().squeeze(1)
     fid = face_id.index_select(0, pix)
     b, px, py = pixel_centres(pix, h, w, vertices.dtype)
     bary, depth = perspective_barycentrics(*gather_triangles(planes, faces, b, fid), px, py)
+    cross = face_cross(vertices, faces)  # (F,3) normals times twice the area
     if normals == "flat":
-        nrm = face_normals(vertices, faces).index_select(0, fid)
+        nrm = unit_vectors(cross).index_select(0, fid)
     else:
-        vn = vertex_normals(vertices, faces).t()[:, None, :]  # (3,1,V)
+        vn = vertex_normals(vertices, faces, cross).t()[:, None, :]  # (3,1,V)
         corners = gather_triangles(vn, faces, torch.zeros_like(fid), fid)
         nrm = torch.stack([(c * bary).sum(1) for c in corners], dim=1)
-        nrm = nrm * torch.rsqrt((nrm * nrm).sum(-1, keepdim=True).clamp_min(torch.finfo(nrm.dtype).tiny))
-    shape = (len(cameras), h, w)
+        nrm = unit_vectors(nrm)
     zeros = torch.zeros(n_pix, dtype=vertices.dtype, device=vertices.device)
     mask_img = zeros.clone().index_fill_(0, pix, 1.0).view(shape)
     depth_img = zeros.index_copy(0, pix, depth).view(shape)
     normal_img = zeros[:, None].expand(n_pix, 3).index_copy(0, pix, nrm).view(*shape, 3)
+    if fragments is None:  # the differentiable pass computed them anyway
+        bary_img = zeros[:, None].expand(n_pix, 3).index_copy(0, pix, bary.detach()).view(*shape, 3)
+        fragments = Fragments(face_id.view(shape), bary_img, depth_img.detach())
     if antialias:
         mask_img, depth_img, normal_img = antialias_silhouettes(
             [mask_img, depth_img, normal_img], fragments.face_id, fragments.depth, vertices, faces, cameras,
-            planes, edges)
+            planes, edges, cross)
     return RenderMaps(mask_img, depth_img, normal_img, fragments)

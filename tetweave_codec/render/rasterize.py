@@ -83,12 +83,24 @@ def rasterize(vertices: Tensor, faces: Tensor, cameras: Cameras, size: int | tup
     check_mesh(vertices, faces)
     h, w = image_size(size)
     n_views = len(cameras)
-    device = vertices.device
-    faces = faces.to(device=device, dtype=torch.long)
+    faces = faces.to(device=vertices.device, dtype=torch.long)
     with torch.no_grad():
-        proj = cameras.to(device=device).project_planes(vertices.detach(), (h, w))  # (3,B,V), input dtype
-        planes = proj.to(torch.float32)
-        keys = torch.full((n_views * h * w,), BACKGROUND_KEY, dtype=torch.int64, device=device)
+        proj = cameras.to(device=vertices.device).project_planes(vertices.detach(), (h, w))  # (3,B,V)
+        face_id = zbuffer(proj, faces, h, w, cull_backfaces=cull_backfaces, near=near)
+        bary, depth = _fragment_attributes(proj, faces, face_id.view(-1), h, w)
+    return Fragments(face_id, bary.view(n_views, h, w, 3), depth.view(n_views, h, w))
+
+
+def zbuffer(planes: Tensor, faces: Tensor, h: int, w: int, *, cull_backfaces: bool = False,
+            near: float = NEAR) -> Tensor:
+    """The visibility pass of `rasterize`: face ids (B,H,W) long, -1 background (no gradient).
+
+    planes (3,B,V): `Cameras.project_planes` of the vertices; faces (F,3) long.
+    """
+    n_views = planes.shape[1]
+    with torch.no_grad():
+        planes = planes.detach().to(torch.float32)
+        keys = torch.full((n_views * h * w,), BACKGROUND_KEY, dtype=torch.int64, device=planes.device)
         for start in range(0, faces.shape[0], FACE_CHUNK):
             chunk = faces[start:start + FACE_CHUNK]
             flat = chunk.t().reshape(-1)  # (3Fc,): all first vertices, then all second, then all third
@@ -99,8 +111,7 @@ def rasterize(vertices: Tensor, faces: Tensor, cameras: Cameras, size: int | tup
                     for i in range(0, coef.shape[1], step):
                         _cover_group(coef[:, i:i + step], [t[i:i + step] for t in ints], level, w, keys)
         face_id = torch.where(keys == BACKGROUND_KEY, torch.full_like(keys, -1), keys & FACE_MASK)
-        bary, depth = _fragment_attributes(proj, faces, face_id, h, w)
-    return Fragments(face_id.view(n_views, h, w), bary.view(n_views, h, w, 3), depth.view(n_views, h, w))
+    return face_id.view(n_views, h, w)
 
 
 def _setup_view(plane: Tensor, flat_faces: Tensor, face_offset: int, view: int, h: int, w: int, near: float,
@@ -115,20 +126,35 @@ def _setup_view(plane: Tensor, flat_faces: Tensor, face_offset: int, view: int, 
     inverse depth 1/z; ints = [columns, rows, first pixel (flat index), face id], each (P,) long.
     """
     n = flat_faces.numel() // 3
-    x, y, z = (plane[c].index_select(0, flat_faces).view(3, n) for c in range(3))  # (3,Fc) each
-    col0 = torch.minimum(torch.minimum(x[0], x[1]), x[2]).sub_(0.5).ceil_().clamp_(0, w)
-    ncol = torch.maximum(torch.maximum(x[0], x[1]), x[2]).sub_(0.5).floor_().clamp_(-1, w - 1).sub_(col0)
-    row0 = torch.minimum(torch.minimum(y[0], y[1]), y[2]).sub_(0.5).ceil_().clamp_(0, h)
-    nrow = torch.maximum(torch.maximum(y[0], y[1]), y[2]).sub_(0.5).floor_().clamp_(-1, h - 1).sub_(row0)
+    # Whole-view checks first: usually every vertex is in front of the camera and inside the image, and then
+    # the per-triangle near-plane test and clamping can be skipped.
+    all_in_front = bool(plane[2].min() > near) if plane.shape[1] else True
+    inside_image = all_in_front and bool((plane[0].min() >= 0) & (plane[0].max() <= w) & (plane[1].min() >= 0)
+                                         & (plane[1].max() <= h)) if plane.shape[1] else True
+    x, y = (plane[c].index_select(0, flat_faces).view(3, n) for c in range(2))  # (3,Fc) each
+    col0 = torch.minimum(torch.minimum(x[0], x[1]), x[2]).sub_(0.5).ceil_()
+    ncol = torch.maximum(torch.maximum(x[0], x[1]), x[2]).sub_(0.5).floor_()
+    row0 = torch.minimum(torch.minimum(y[0], y[1]), y[2]).sub_(0.5).ceil_()
+    nrow = torch.maximum(torch.maximum(y[0], y[1]), y[2]).sub_(0.5).floor_()
+    if not inside_image:
+        col0.clamp_(0, w)
+        ncol.clamp_(-1, w - 1)
+        row0.clamp_(0, h)
+        nrow.clamp_(-1, h - 1)
+    ncol -= col0
+    nrow -= row0
     area2 = (x[1] - x[0]) * (y[2] - y[0]) - (x[2] - x[0]) * (y[1] - y[0])
-    keep = (ncol >= 0) & (nrow >= 0) & (torch.minimum(torch.minimum(z[0], z[1]), z[2]) > near)
+    keep = (ncol >= 0) & (nrow >= 0)
+    if not all_in_front:
+        z = plane[2].index_select(0, flat_faces).view(3, n)
+        keep &= torch.minimum(torch.minimum(z[0], z[1]), z[2]) > near
     # In screen space (y down) a triangle whose normal faces the camera winds clockwise: area2 < 0.
     keep &= (area2 < 0) if cull_backfaces else (area2 != 0)
     ncol += 1
     nrow += 1
-    side = torch.maximum(ncol, nrow)
-    level = side.clamp_min(1.0).log2_().ceil_()
-    level += torch.exp2(level) < side  # guard against log2 rounding down
+    # Box level: ceil(log2(larger side)). float32 log2 is exact at powers of two and, for sides below 2**16,
+    # at least 4e-5 above the integer otherwise (far more than its rounding error), so ceil is exact.
+    level = torch.maximum(ncol, nrow).clamp_min_(1.0).log2_().ceil_()
     level = torch.where(keep, level, -1.0)
     top = int(level.max()) if n else -1
     groups = []
@@ -139,7 +165,8 @@ def _setup_view(plane: Tensor, flat_faces: Tensor, face_offset: int, view: int, 
     if not groups:
         return []
     face = torch.cat([m for _, m in groups]) if len(groups) > 1 else groups[0][1]  # kept faces, by level
-    x, y, z = x.index_select(1, face), y.index_select(1, face), z.index_select(1, face)  # (3,P)
+    x, y = x.index_select(1, face), y.index_select(1, face)  # (3,P)
+    z = plane[2].index_select(0, flat_faces.view(3, n).index_select(1, face).view(-1)).view(3, -1)
     col0, row0, ncol, nrow, area2 = (t.index_select(0, face) for t in (col0, row0, ncol, nrow, area2))
 
     # Edge k runs from vertex EDGE_START[k] = k+1 to EDGE_END[k] = k+2 (mod 3): rolled rows.
