@@ -35,9 +35,7 @@ def assert_closed_manifold(vertices: np.ndarray, faces: np.ndarray) -> None:
     assert np.all((f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 2] != f[:, 0])), "degenerate face"
     directed = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
     keys = directed[:, 0] * len(vertices) + directed[:, 1]
-    assert len(np.unique(keys)) == len(keys), (
-        "a directed edge is used twice (orientation or non-manifold edge)"
-    )
+    assert len(np.unique(keys)) == len(keys), "a directed edge is used twice (orientation or non-manifold edge)"
     reverse = directed[:, 1] * len(vertices) + directed[:, 0]
     assert np.isin(reverse, keys).all(), "open boundary: an edge has no opposite half-edge"
     # Vertex-manifold: the link of every vertex (the edges opposite to it) is one single cycle.
@@ -58,9 +56,7 @@ def assert_closed_manifold(vertices: np.ndarray, faces: np.ndarray) -> None:
             if u == start or steps > link_count[v]:
                 break
         assert steps == link_count[v], f"vertex {v} is not manifold (its faces form more than one fan)"
-    mesh = manifold3d.Mesh(
-        vert_properties=np.asarray(vertices, dtype=np.float32), tri_verts=f.astype(np.uint32)
-    )
+    mesh = manifold3d.Mesh(vert_properties=np.asarray(vertices, dtype=np.float32), tri_verts=f.astype(np.uint32))
     assert manifold3d.Manifold(mesh).status() == manifold3d.Error.NoError
 
 
@@ -298,9 +294,10 @@ def test_one_sign_gives_empty_mesh(sign):
             assert len(res.faces) == len(tz.hull_faces)
         else:
             assert res.vertices.shape == (0, 3) and res.faces.shape == (0, 3)
-        out = marching_tets(*(torch.tensor(a) for a in (pts, tz.tets, s)))
-        if sign > 0:
-            assert out.vertices.shape == (0, 3) and out.faces.shape == (0, 3)
+        args = [torch.tensor(a) for a in (pts, tz.tets, s)]
+        out = marching_tets(*args, None, None if hull is None else torch.tensor(hull))
+        assert np.array_equal(out.faces.numpy(), res.faces)
+        np.testing.assert_allclose(out.vertices.numpy(), res.vertices)
 
 
 def test_no_tets():

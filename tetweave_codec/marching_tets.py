@@ -172,7 +172,7 @@ def _caps_torch(hull_faces, inside, keys, n, num_vertices):
     key = torch.minimum(ends[..., 0], ends[..., 1]) * n + torch.maximum(ends[..., 0], ends[..., 1])
     pos = torch.searchsorted(keys, key).clamp(max=max(keys.shape[0] - 1, 0))
     mixed = hin[:, HULL_EDGES[:, 0]] != hin[:, HULL_EDGES[:, 1]]
-    if keys.shape[0] == 0 or bool((mixed & (keys[pos] != key)).any()):
+    if bool(mixed.any()) and (keys.shape[0] == 0 or bool((mixed & (keys[pos] != key)).any())):
         raise ValueError("hull_faces do not match the tets: a hull edge with a sign change is not a tet edge")
     slots = torch.cat([w_slot, pos], 1)  # (Hs, 6)
     tri = torch.as_tensor(CAP_TABLE, device=device)[code]
