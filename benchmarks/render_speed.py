@@ -28,7 +28,7 @@ MODES = ("rasterize", "forward", "fwd+bwd")
 
 
 def bumpy_torus(n_faces: int, dtype: torch.dtype = torch.float32) -> tuple[torch.Tensor, torch.Tensor]:
-    """A torus with bumps, (V,3) and (F,3), F = n_faces rounded to an even grid (within 1%)."""
+    """A closed torus with bumps, outward normals, (V,3) and (F,3), F = n_faces within 1%."""
     ratio = 2.0  # around the ring vs around the tube
     nv = max(3, round(math.sqrt(n_faces / (2.0 * ratio))))
     nu = max(3, round(n_faces / (2.0 * nv)))
@@ -42,7 +42,8 @@ def bumpy_torus(n_faces: int, dtype: torch.dtype = torch.float32) -> tuple[torch
     j = torch.arange(nv)[None, :]
     a, b = i * nv + j, ((i + 1) % nu) * nv + j
     c, d = ((i + 1) % nu) * nv + (j + 1) % nv, i * nv + (j + 1) % nv
-    faces = torch.cat([torch.stack([a, b, c], -1).reshape(-1, 3), torch.stack([a, c, d], -1).reshape(-1, 3)])
+    # wound so that the normals point outwards, like the encoder's meshes
+    faces = torch.cat([torch.stack([a, c, b], -1).reshape(-1, 3), torch.stack([a, d, c], -1).reshape(-1, 3)])
     return verts.to(dtype), faces
 
 

@@ -267,6 +267,22 @@ def test_closed_mesh_has_no_pinholes_and_culling_agrees(device):
     assert bool((a.face_id[:, disc] >= 0).all())
 
 
+def test_automatic_backface_culling_only_for_closed_outward_meshes(device):
+    from tetweave_codec.render.maps import closed_outward
+
+    verts, faces = _sphere(3, 0.8, device)
+    assert closed_outward(verts, faces, mesh_edges(faces))
+    flipped = faces[:, [0, 2, 1]]
+    assert not closed_outward(verts, flipped, mesh_edges(flipped))  # inward normals: back faces are visible
+    assert not closed_outward(verts, faces[1:], mesh_edges(faces[1:]))  # a hole
+    cams = fibonacci_cameras(3, device=device, dtype=torch.float64)
+    for f in (faces, flipped, faces[1:]):
+        auto = render_maps(verts, f, cams, 48)
+        plain = render_maps(verts, f, cams, 48, cull_backfaces=False)
+        assert torch.equal(auto.fragments.face_id, plain.fragments.face_id)
+        assert torch.equal(auto.mask, plain.mask) and torch.equal(auto.depth, plain.depth)
+
+
 def test_chunking_does_not_change_the_image(device, monkeypatch):
     verts, faces = _sphere(3, 0.8, device, dtype=torch.float32)
     verts = torch.cat([verts, verts * 0.5 + 0.3])  # two overlapping spheres
