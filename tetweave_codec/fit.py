@@ -204,12 +204,12 @@ def _regularized_loss(params: _Params, grid: _Grid, targets: Targets, views: Ten
         if with_grid_terms:
             fair = losses.fairness_loss(mt.vertices, mt.faces) * weights.fairness
             total = total + fair
-            parts["fairness"] = float(fair)
+            parts["fairness"] = float(fair.detach())
     if with_grid_terms and odt_factor > 0:
         odt = losses.odt_loss(params.points, grid.tets) * (weights.odt * odt_factor)
         total = total + odt
-        parts["odt"] = float(odt)
-    parts["total"] = float(total)
+        parts["odt"] = float(odt.detach())
+    parts["total"] = float(total.detach())
     return total, parts
 
 
@@ -226,7 +226,7 @@ def _image_loss(maps, target_maps, weights: Weights) -> tuple[Tensor, dict[str, 
     depth = losses.depth_loss(maps.depth, target_maps.depth, both, norm="l2") * weights.depth
     normals = losses.normal_loss(maps.normals, target_maps.normals, both) * weights.normals
     total = mask + depth + normals
-    return total, {"mask": float(mask), "depth": float(depth), "normals": float(normals)}
+    return total, {"mask": float(mask.detach()), "depth": float(depth.detach()), "normals": float(normals.detach())}
 
 
 def _render(vertices: Tensor, faces: Tensor, cameras, size: int):
@@ -276,6 +276,21 @@ def _resample(params: _Params, grid: _Grid, targets: Targets, n_target: int, sch
     return _Params(points.cpu().numpy(), s.cpu().numpy(), c.cpu().numpy(), params.points.device, lr)
 
 
+def _backward(loss: Tensor, params: _Params) -> None:
+    """Backpropagate, dropping non-finite gradient entries.
+
+    A vertex on an edge whose two directional distances are both within float32 rounding of zero has an unbounded
+    derivative; one such edge must not poison every parameter through Adam's moments, so its gradient is zeroed
+    (the next triangulation or step moves it away from the degenerate spot).
+    """
+    if not bool(torch.isfinite(loss)):
+        return
+    loss.backward()
+    for t in (params.points, params.s, params.c):
+        if t.grad is not None:
+            torch.nan_to_num_(t.grad, nan=0.0, posinf=0.0, neginf=0.0)
+
+
 def _main_stage(params: _Params, targets: Targets, surface: SurfaceTarget | None, config: FitConfig, backend: str,
                 generator: torch.Generator,
                 progress: ProgressFn, history: list) -> _Params:
@@ -300,7 +315,7 @@ def _main_stage(params: _Params, targets: Targets, surface: SurfaceTarget | None
         loss, parts = _regularized_loss(params, grid, targets, views, sch, config.weights, with_grid_terms=True,
                                         surface=surface, generator=generator,
                                         odt_factor=float(sch.delaunay_every) if period_end else 0.0)
-        loss.backward()
+        _backward(loss, params)
         params.opt_sc.step()
         params.opt_sc.zero_grad(set_to_none=True)
         if period_end:
@@ -341,7 +356,7 @@ def _late_stage(points16: np.ndarray, s: np.ndarray, c: np.ndarray, targets: Tar
         views = torch.randperm(len(targets), generator=generator)[:sch.views_per_iter].to(device)
         loss, parts = _regularized_loss(params, grid, targets, views, sch, config.weights, with_grid_terms=False,
                                         surface=surface, generator=generator)
-        loss.backward()
+        _backward(loss, params)
         params.opt_sc.step()
         params.opt_sc.zero_grad(set_to_none=True)
         history.append(("late", it, parts["total"]))
