@@ -63,7 +63,6 @@ def mesh_edges(faces: Tensor, n_vertices: int | None = None) -> MeshEdges:
     """Edge topology of faces (F,3) long (see MeshEdges). Deterministic; one sort of the 3F edges."""
     if n_vertices is None:
         n_vertices = int(faces.max()) + 1 if faces.numel() else 0
-    device = faces.device
     n_faces = faces.shape[0]
     # Entry 3f+k is edge k of face f, from vertex EDGE_START[k] to EDGE_END[k]; the vertex opposite it is the
     # face's vertex k, i.e. entry 3f+k of faces.reshape(-1).
@@ -72,22 +71,26 @@ def mesh_edges(faces: Tensor, n_vertices: int | None = None) -> MeshEdges:
     key = torch.minimum(a, b) * n_vertices + torch.maximum(a, b)
     order = _argsort(key, n_vertices * n_vertices)  # equal keys stay in entry order
     skey = key.index_select(0, order)
-    starts = torch.ones_like(skey, dtype=torch.bool)
-    torch.ne(skey[1:], skey[:-1], out=starts[1:])
     # A run of two equal keys is an interior edge; runs of one (boundary) or 3+ (non-manifold) are listed per
-    # entry, as boundary edges.
-    run_len = torch.bincount(torch.cumsum(starts, 0) - 1)
-    start_pos = starts.nonzero().squeeze(1)
-    pair_pos = start_pos.index_select(0, (run_len == 2).nonzero().squeeze(1))
-    first = order.index_select(0, pair_pos)
-    second = order.index_select(0, pair_pos + 1)
-    pos_len = torch.repeat_interleave(run_len, run_len, output_size=skey.numel())
-    lone = order.index_select(0, (pos_len != 2).nonzero().squeeze(1))
-    first = torch.cat([first, lone])
-    second = torch.cat([second, torch.full_like(lone, -1)])
-    face_of = torch.arange(n_faces, device=device).repeat_interleave(3)
-    f1 = face_of.index_select(0, first)
-    f2 = torch.where(second >= 0, face_of.index_select(0, second.clamp_min(0)), -1)
+    # entry, as boundary edges. Closed manifold meshes have only runs of two: checked first, cheaply.
+    paired = n_faces % 2 == 0 and bool((skey[0::2] == skey[1::2]).all()) and \
+        bool((skey[1:-1:2] != skey[2::2]).all())
+    if paired:
+        first, second = order[0::2].contiguous(), order[1::2].contiguous()
+    else:
+        starts = torch.ones_like(skey, dtype=torch.bool)
+        torch.ne(skey[1:], skey[:-1], out=starts[1:])
+        run_len = torch.bincount(torch.cumsum(starts, 0) - 1)
+        start_pos = starts.nonzero().squeeze(1)
+        pair_pos = start_pos.index_select(0, (run_len == 2).nonzero().squeeze(1))
+        first = order.index_select(0, pair_pos)
+        second = order.index_select(0, pair_pos + 1)
+        pos_len = torch.repeat_interleave(run_len, run_len, output_size=skey.numel())
+        lone = order.index_select(0, (pos_len != 2).nonzero().squeeze(1))
+        first = torch.cat([first, lone])
+        second = torch.cat([second, torch.full_like(lone, -1)])
+    f1 = torch.div(first, 3, rounding_mode="floor")
+    f2 = torch.where(second >= 0, torch.div(second, 3, rounding_mode="floor"), -1)
     a1, b1 = a.index_select(0, first), b.index_select(0, first)
     apex = faces.reshape(-1).index_select(0, first)
     consistent = (second < 0) | (a.index_select(0, second.clamp_min(0)) == b1)
