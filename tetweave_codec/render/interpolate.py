@@ -24,15 +24,11 @@ def perspective_barycentrics(x: Tensor, y: Tensor, z: Tensor, px: Tensor,
     # Twice the signed area of (pixel, edge start, edge end) for edge k from vertex k+1 to k+2 (mod 3, see
     # rasterize.EDGE_START): the screen barycentric of vertex k times twice the triangle's area.
     sub = dx.roll(-1, 1) * dy.roll(-2, 1) - dy.roll(-1, 1) * dx.roll(-2, 1)  # (N,3)
-    area = sub.sum(-1)
     weighted = sub / z
     denom = weighted.sum(-1)
-    # Degenerate (edge-on) triangles have area ~ 0: give them finite values and no gradient.
-    bad = (denom == 0) | (area == 0)
-    safe = torch.where(bad, torch.ones_like(denom), denom)
-    bary = torch.where(bad[:, None], torch.full_like(weighted, 1.0 / 3.0), weighted / safe[:, None])
-    depth = torch.where(bad, z.mean(-1), area / safe)
-    return bary, depth
+    # A degenerate (zero-area) triangle would divide 0 by 0: its pixels get zero weights and depth instead.
+    inv = 1.0 / torch.where(denom == 0, torch.ones_like(denom), denom)
+    return weighted * inv[:, None], sub.sum(-1) * inv
 
 
 def face_cross(vertices: Tensor, faces: Tensor) -> Tensor:
