@@ -12,6 +12,7 @@ tables from noisy machines stay comparable.
 
     python -m tetweave_codec.benchmarks.decode_speed
     python -m tetweave_codec.benchmarks.decode_speed --sizes 8k,64k --repeats 5 --threads 1 --baseline none
+    python -m tetweave_codec.benchmarks.decode_speed --clock cpu     # CPU time: steadier on a busy machine
 """
 
 from __future__ import annotations
@@ -73,15 +74,21 @@ def make_container(n: int, seed: int = 0) -> bytes:
     return pack(TetWeaveFile(pts, s, c, 1, 1.0, np.zeros(3)))
 
 
-def time_decode(data: bytes, backend: str, repeats: int) -> dict:
+def time_decode(data: bytes, backend: str, repeats: int, clock: str = "wall") -> dict:
+    """Median seconds per stage ("delaunay", "marching_tets", "total", ...) over `repeats` decodes.
+
+    clock "wall" times stages with time.perf_counter, "cpu" with time.process_time (less sensitive to other jobs
+    on a shared machine; decoding is single-threaded, so on a quiet machine both agree).
+    """
     from tetweave_codec.decoder import decode_detailed
 
+    timer = time.process_time if clock == "cpu" else time.perf_counter
     decode_detailed(data, backend)  # warm-up: imports, first-touch allocations
     runs = []
     for _ in range(repeats):
-        start = time.perf_counter()
-        res = decode_detailed(data, backend)
-        total = time.perf_counter() - start
+        start = timer()
+        res = decode_detailed(data, backend, clock=timer)
+        total = timer() - start
         runs.append(dict(res.seconds, total=total))
     med = {k: statistics.median(r[k] for r in runs) for k in runs[0]}
     med.update(tets=res.num_tets, vertices=len(res.vertices), faces=len(res.faces))
@@ -100,6 +107,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--backend", default="auto", help="backend under test (default: auto = TetGen)")
     parser.add_argument("--baseline", default="qhull", help="baseline backend, or 'none' (default: qhull)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the point clouds (default: 0)")
+    parser.add_argument("--clock", choices=("wall", "cpu"), default="wall",
+                        help="wall-clock or process CPU time (steadier on a busy machine) (default: wall)")  # fmt: skip
     args = parser.parse_args(argv)
     if args.threads:
         # Before numpy is imported (it is imported lazily below): thread pools read these at start-up.
@@ -110,7 +119,7 @@ def main(argv: list[str] | None = None) -> int:
 
     backend = resolve_backend(args.backend)
     baseline = None if args.baseline == "none" else resolve_backend(args.baseline)
-    print(f"# decode speed: torus shell, SH degree 1, median of {args.repeats}; backend {backend}"
+    print(f"# decode speed ({args.clock} clock): torus shell, SH degree 1, median of {args.repeats}; backend {backend}"
           + (f", baseline {baseline}" if baseline else ""))  # fmt: skip
     header = ["points", "tets", "faces", "Delaunay ms", "marching tets ms", "total ms"]
     if baseline:
@@ -119,11 +128,11 @@ def main(argv: list[str] | None = None) -> int:
     print("|" + "|".join("---:" for _ in header) + "|")
     for n in args.sizes:
         data = make_container(n, args.seed)
-        main_t = time_decode(data, backend, args.repeats)
+        main_t = time_decode(data, backend, args.repeats, args.clock)
         row = [f"{n:,}", f"{main_t['tets']:,}", f"{main_t['faces']:,}", f"{1e3 * main_t['delaunay']:.0f}",
                f"{1e3 * main_t['marching_tets']:.1f}", f"{1e3 * main_t['total']:.0f}"]  # fmt: skip
         if baseline:
-            base_t = time_decode(data, baseline, args.repeats)
+            base_t = time_decode(data, baseline, args.repeats, args.clock)
             row += [f"{1e3 * base_t['delaunay']:.0f}", f"{1e3 * base_t['total']:.0f}",
                     f"{base_t['total'] / main_t['total']:.1f}x"]  # fmt: skip
         print("| " + " | ".join(row) + " |", flush=True)

@@ -62,11 +62,11 @@ def mesh_from_points(
     Returns:
         vertices (V, 3) float64, faces (F, 3) int64 (outward; both empty when s has one sign only).
     """
-    result = _extract(points, s, c, sh_degree, backend, {})
+    result = _extract(points, s, c, sh_degree, backend, {}, time.perf_counter)
     return result[0], result[1]
 
 
-def _extract(points, s, c, sh_degree, backend, seconds):
+def _extract(points, s, c, sh_degree, backend, seconds, clock):
     check_degree(sh_degree)
     pts = np.asarray(points, dtype=np.float64)
     s = np.asarray(s, dtype=np.float64).reshape(-1)
@@ -79,11 +79,11 @@ def _extract(points, s, c, sh_degree, backend, seconds):
         coeffs = np.asarray(c, dtype=np.float64)
         if coeffs.shape != (len(pts), q):
             raise ValueError(f"c must be ({len(pts)}, {q}) for SH degree {sh_degree}, got {coeffs.shape}")
-    t0 = time.perf_counter()
+    t0 = clock()
     tz = tetrahedralize(pts, backend)
-    t1 = time.perf_counter()
+    t1 = clock()
     mt = marching_tets_numpy(pts, tz.tets, s, coeffs, tz.hull_faces)
-    t2 = time.perf_counter()
+    t2 = clock()
     seconds["delaunay"] = t1 - t0
     seconds["marching_tets"] = t2 - t1
     return mt.vertices, mt.faces, tz
@@ -104,14 +104,14 @@ def decode(data: bytes, backend: str | None = None) -> tuple[np.ndarray, np.ndar
     return result.vertices, result.faces
 
 
-def decode_detailed(data: bytes, backend: str | None = None) -> DecodeResult:
-    """`decode` plus the parsed container, the backend used and per-stage timings."""
+def decode_detailed(data: bytes, backend: str | None = None, clock=time.perf_counter) -> DecodeResult:
+    """`decode` plus the parsed container, the backend used and per-stage timings measured with `clock`."""
     from tetweave_codec.formats.tw import unpack
 
     seconds: dict[str, float] = {}
-    t0 = time.perf_counter()
+    t0 = clock()
     tw = unpack(data)
-    seconds["unpack"] = time.perf_counter() - t0
+    seconds["unpack"] = clock() - t0
     if backend is None:
         backend = tw.backend
         if backend not in available_backends():
@@ -122,6 +122,6 @@ def decode_detailed(data: bytes, backend: str | None = None) -> DecodeResult:
                 stacklevel=2,
             )
             backend = available_backends()[0]
-    vertices, faces, tz = _extract(tw.points, tw.s, tw.c, tw.sh_degree, backend, seconds)
+    vertices, faces, tz = _extract(tw.points, tw.s, tw.c, tw.sh_degree, backend, seconds, clock)
     vertices = vertices * float(tw.scale) + tw.offset
     return DecodeResult(vertices, faces, tw, tz.backend, seconds, len(tz.tets))
