@@ -283,6 +283,18 @@ def test_automatic_backface_culling_only_for_closed_outward_meshes(device):
         assert torch.equal(auto.mask, plain.mask) and torch.equal(auto.depth, plain.depth)
 
 
+def test_views_render_independently_of_their_batch(device):
+    """More views than fit in one facing bit mask (52): same maps as rendering the views in small batches."""
+    verts, faces = _sphere(2, 0.8, device)
+    verts = verts * torch.tensor([1.0, 0.7, 0.5], dtype=torch.float64, device=device)
+    cams = fibonacci_cameras(56, device=device, dtype=torch.float64)
+    all_views = render_maps(verts, faces, cams, 20)
+    for part in (slice(0, 5), slice(50, 56)):
+        some = render_maps(verts, faces, cams[part], 20)
+        assert torch.equal(all_views.mask[part], some.mask)
+        assert torch.equal(all_views.normals[part], some.normals)
+
+
 def test_chunking_does_not_change_the_image(device, monkeypatch):
     verts, faces = _sphere(3, 0.8, device, dtype=torch.float32)
     verts = torch.cat([verts, verts * 0.5 + 0.3])  # two overlapping spheres

@@ -38,7 +38,7 @@ from .cameras import Cameras
 from .interpolate import face_cross
 from .rasterize import NEAR
 
-VIEW_BITS = 62  # views whose facings share one int64 per face
+VIEW_BITS = 52  # views whose facings share one int64 per face (summed as float64 bits: exact up to 2**53)
 DEPTH_TOLERANCE = 1e-4  # relative: how much farther than the edge the outer pixel must be to lie behind it
 
 
@@ -162,13 +162,14 @@ def _silhouette_edges(vertices: Tensor, faces: Tensor, normals: Tensor, cameras:
     with torch.no_grad():
         offset = (normals * vertices.index_select(0, faces[:, 0])).sum(-1, keepdim=True)  # (F,1)
         f1, f2 = edges.faces[:, 0], edges.faces[:, 1]
+        f2_or_1 = torch.where(f2 < 0, f1, f2)
         for start in range(0, len(cameras), VIEW_BITS):
             eyes = cameras.eye[start:start + VIEW_BITS].to(vertices.dtype)
             n_views = eyes.shape[0]
-            bit = torch.ones((), dtype=torch.int64, device=faces.device) << torch.arange(n_views,
-                                                                                     device=faces.device)
-            facing = ((normals @ eyes.t() > offset).long() * bit).sum(1)  # (F,): bit b: front side faces view b
-            differ = facing.index_select(0, f1) ^ facing.index_select(0, f2.clamp_min(0))
+            bit = torch.exp2(torch.arange(n_views, device=faces.device, dtype=torch.float64))
+            front = (normals @ eyes.t() > offset).to(torch.float64)  # (F,B)
+            facing = (front @ bit).long()  # (F,): bit b set when the front side faces view b
+            differ = facing.index_select(0, f1) ^ facing.index_select(0, f2_or_1)
             every = (1 << n_views) - 1
             # A fold: the facings differ across a consistently oriented edge, or agree across an inconsistent
             # one. Boundary edges are silhouettes in every view.
@@ -193,54 +194,50 @@ def _crossings(screen: Tensor, view: Tensor, edge: Tensor, edges: MeshEdges, fac
     t is differentiable w.r.t. `screen`; at most one crossing per pixel pair is returned (the outermost).
     """
     device = screen.device
-    n_verts = screen.shape[2]
-    flat_screen = screen.reshape(3, -1).t()  # (B*V,3) rows
+    rows = screen.reshape(3, -1)  # (3, B*V): screen x, screen y, depth of every (view, vertex)
+    base = view * screen.shape[2]
     ends = edges.ends.index_select(0, edge)
-    va = view * n_verts + ends[:, 0]
-    vb = view * n_verts + ends[:, 1]
-    vo = view * n_verts + edges.apex.index_select(0, edge)
+    ia, ib, io = base + ends[:, 0], base + ends[:, 1], base + edges.apex.index_select(0, edge)
     with torch.no_grad():
-        pa, pb, po = (flat_screen.detach().index_select(0, i) for i in (va, vb, vo))
-        ok = (pa[:, 2] > NEAR) & (pb[:, 2] > NEAR) & (po[:, 2] > NEAR)
-        steep = (pb[:, 1] - pa[:, 1]).abs() >= (pb[:, 0] - pa[:, 0]).abs()
+        det = rows.detach()
+        xa, ya, za = (det[c].index_select(0, ia) for c in range(3))
+        xb, yb, zb = (det[c].index_select(0, ib) for c in range(3))
+        xo, yo, zo = (det[c].index_select(0, io) for c in range(3))
+        ok = (za > NEAR) & (zb > NEAR) & (zo > NEAR)
         # (u, v) frame: pairs lie along u, the edge is walked along v (rows if steep, columns otherwise).
-        ua, va_, ub, vb_ = (torch.where(steep, p[:, i], p[:, 1 - i]) for p in (pa, pb) for i in (0, 1))
-        n_u = torch.where(steep, w, h)
+        steep = (yb - ya).abs() >= (xb - xa).abs()
+        va, vb = torch.where(steep, ya, xa), torch.where(steep, yb, xb)
         n_v = torch.where(steep, h, w)
-        k0 = torch.ceil(torch.minimum(va_, vb_) - 0.5).clamp(min=0)
-        k1 = torch.minimum(torch.ceil(torch.maximum(va_, vb_) - 0.5) - 1, (n_v - 1).to(k0.dtype))
-        count = torch.where(ok, (k1 - k0 + 1).clamp(min=0), 0).long()
+        k0 = torch.ceil(torch.minimum(va, vb) - 0.5).clamp_(min=0)
+        k1 = torch.minimum(torch.ceil(torch.maximum(va, vb) - 0.5) - 1, (n_v - 1).to(k0.dtype))
+        count = torch.where(ok, (k1 - k0 + 1).clamp_(min=0), 0).long()
         total = int(count.sum())
         if total == 0:
             return None
         which = torch.repeat_interleave(torch.arange(count.numel(), device=device), count, output_size=total)
         line = k0.long().index_select(0, which) + torch.arange(total, device=device) - \
             (torch.cumsum(count, 0) - count).index_select(0, which)
+        st = steep.index_select(0, which)
+        ia_w, ib_w = ia.index_select(0, which), ib.index_select(0, which)
     # Differentiable crossing of edge `which` with the centre line v = line + 0.5.
-    pa_g, pb_g = flat_screen.index_select(0, va.index_select(0, which)), flat_screen.index_select(
-        0, vb.index_select(0, which))
-    st = steep.index_select(0, which)
-    ua_g = torch.where(st, pa_g[:, 0], pa_g[:, 1])
-    ub_g = torch.where(st, pb_g[:, 0], pb_g[:, 1])
-    va_g = torch.where(st, pa_g[:, 1], pa_g[:, 0])
-    vb_g = torch.where(st, pb_g[:, 1], pb_g[:, 0])
-    centre_v = line.to(screen.dtype) + 0.5
-    s = (centre_v - va_g) / (vb_g - va_g)
+    xa_g, ya_g = rows[0].index_select(0, ia_w), rows[1].index_select(0, ia_w)
+    xb_g, yb_g = rows[0].index_select(0, ib_w), rows[1].index_select(0, ib_w)
+    ua_g, ub_g = torch.where(st, xa_g, ya_g), torch.where(st, xb_g, yb_g)
+    va_g, vb_g = torch.where(st, ya_g, xa_g), torch.where(st, yb_g, xb_g)
+    s = (line.to(screen.dtype) + 0.5 - va_g) / (vb_g - va_g)
     u_cross = ua_g + s * (ub_g - ua_g)
     with torch.no_grad():
         j = torch.floor(u_cross.detach() - 0.5).long()  # pair: centres j + 0.5 and j + 1.5 along u
-        n_u_w = n_u.index_select(0, which)
-        valid = (j >= 0) & (j + 1 < n_u_w)
+        valid = (j >= 0) & (j + 1 < torch.where(st, w, h))
         # The first pixel (smaller u) is on the edge's face side iff the apex lies on the same side as it.
-        dv = vb_g.detach() - va_g.detach()
-        du = ub_g.detach() - ua_g.detach()
-        pa_d, po_d = pa.index_select(0, which), po.index_select(0, which)
-        uo = torch.where(st, po_d[:, 0], po_d[:, 1]) - ua_g.detach()
-        vo_ = torch.where(st, po_d[:, 1], po_d[:, 0]) - va_g.detach()
-        apex_side = du * vo_ - dv * uo
-        first_inner = (apex_side > 0) == (dv > 0)
+        xo_w, yo_w = xo.index_select(0, which), yo.index_select(0, which)
+        ua, va_w = ua_g.detach(), va_g.detach()
+        du, dv = ub_g.detach() - ua, vb_g.detach() - va_w
+        uo = torch.where(st, xo_w, yo_w) - ua
+        vo = torch.where(st, yo_w, xo_w) - va_w
+        first_inner = ((du * vo - dv * uo) > 0) == (dv > 0)
         b = view.index_select(0, which)
-        jc = j.clamp(0, None)
+        jc = j.clamp(min=0)
         first = torch.where(st, b * (h * w) + line * w + jc, b * (h * w) + jc * w + line)
         second = first + torch.where(st, 1, w)
         inner = torch.where(first_inner, first, second)
@@ -248,24 +245,24 @@ def _crossings(screen: Tensor, view: Tensor, edge: Tensor, edges: MeshEdges, fac
         # Visibility: the inner pixel is covered, the outer one is background or behind the edge.
         fid, dep = face_id.reshape(-1), depth.reshape(-1)
         inner_c, outer_c = inner.clamp(0, fid.numel() - 1), outer.clamp(0, fid.numel() - 1)
-        inv_z = (1.0 - s.detach()) / pa_d[:, 2] + s.detach() / pb.index_select(0, which)[:, 2]
-        z_edge = 1.0 / inv_z
-        out_bg = fid.index_select(0, outer_c) < 0
-        out_behind = dep.index_select(0, outer_c) > z_edge * (1.0 + DEPTH_TOLERANCE)
-        keep = valid & (fid.index_select(0, inner_c) >= 0) & (out_bg | out_behind)
-        keep = keep.nonzero().squeeze(1)
+        sd = s.detach()
+        z_edge = 1.0 / ((1.0 - sd) / za.index_select(0, which) + sd / zb.index_select(0, which))
+        out_fid = fid.index_select(0, outer_c)
+        out_behind = (out_fid < 0) | (dep.index_select(0, outer_c) > z_edge * (1.0 + DEPTH_TOLERANCE))
+        keep = (valid & (fid.index_select(0, inner_c) >= 0) & out_behind).nonzero().squeeze(1)
         if keep.numel() == 0:
             return None
+        inner, outer = inner.index_select(0, keep), outer.index_select(0, keep)
+        fi = first_inner.index_select(0, keep)
     t_first = u_cross.index_select(0, keep) - (j.index_select(0, keep).to(screen.dtype) + 0.5)
-    fi = first_inner.index_select(0, keep)
     t = torch.where(fi, t_first, 1.0 - t_first)
-    inner, outer = inner.index_select(0, keep), outer.index_select(0, keep)
     with torch.no_grad():
         # One crossing per pixel pair: the one farthest from the inner centre (the outermost outline).
         pair = torch.minimum(inner, outer) * 2 + (inner - outer).abs().ne(1).long()
         t_bits = t.detach().clamp(0.0, 1.0).to(torch.float32).view(torch.int32).to(torch.int64)
-        packed = (t_bits << 32) | torch.arange(t.numel(), device=device)
-        best = torch.full((face_id.numel() * 2,), -1, dtype=torch.int64, device=device)
-        best.scatter_reduce_(0, pair, packed, reduce="amax")
-        win = (best.index_select(0, pair) == packed).nonzero().squeeze(1)
+        order = torch.sort((pair << 32) | t_bits, stable=True).indices
+        spair = pair.index_select(0, order)
+        last = torch.ones_like(spair, dtype=torch.bool)
+        torch.ne(spair[1:], spair[:-1], out=last[:-1])
+        win = order.index_select(0, last.nonzero().squeeze(1))
     return inner.index_select(0, win), outer.index_select(0, win), t.index_select(0, win)
