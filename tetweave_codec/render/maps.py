@@ -42,9 +42,9 @@ def render_maps(vertices: Tensor, faces: Tensor, cameras: Cameras, size: int | t
     area-weighted vertex normals). antialias: blend silhouette pixels by analytic coverage, which is what
     gives the mask loss gradients w.r.t. vertex positions. fragments: reuse a rasterization of the same mesh,
     cameras and size (e.g. from `rasterize` or a previous RenderMaps). cull_backfaces: see `rasterize`; None
-    (default) culls when the mesh is provably closed, consistently oriented and outward (then the result is
-    the same, about a third faster). edges: `mesh_edges(faces)`, to reuse the edge topology when rendering
-    the same mesh repeatedly (computed here when antialiasing or culling needs it).
+    (default) culls when the edge topology is known (`edges` given, or computed for antialiasing) and shows a
+    closed, consistently oriented, outward mesh: the same result, about a third faster. edges:
+    `mesh_edges(faces)`, to reuse the edge topology when rendering the same mesh repeatedly.
     Under torch.no_grad() (targets from big input meshes) memory stays bounded by the image and chunk sizes.
     """
     if normals not in NORMAL_MODES:
@@ -55,7 +55,7 @@ def render_maps(vertices: Tensor, faces: Tensor, cameras: Cameras, size: int | t
     cameras = cameras.to(device=vertices.device)
     planes = cameras.project_planes(vertices, (h, w))  # (3,B,V) with gradients
     cross = face_cross(vertices, faces)  # (F,3) normals times twice the area
-    if edges is None and (antialias or (cull_backfaces is None and fragments is None)):
+    if edges is None and antialias:
         edges = mesh_edges(faces, vertices.shape[0])
     if cull_backfaces is None:
         cull_backfaces = edges is not None and closed_outward(vertices, faces, edges, cross)
