@@ -124,9 +124,11 @@ def _spans_no_volume(pts: np.ndarray) -> bool:
     if len(pts) < 4:
         return True
     centred = pts - pts.mean(axis=0)
-    # 3x3 Gram matrix instead of an SVD of (N, 3): same singular values squared, far cheaper. einsum without
-    # BLAS keeps the sum order (and so this decision) independent of the thread count.
-    eig = np.linalg.eigvalsh(np.einsum("ni,nj->ij", centred, centred, optimize=False))
+    # 3x3 Gram matrix instead of an SVD of (N, 3): same singular values squared, far cheaper. Plain numpy sums
+    # instead of BLAS keep the sum order (and so this decision) independent of the thread count.
+    cols = centred.T.copy()
+    gram = np.array([[(cols[i] * cols[j]).sum() for j in range(3)] for i in range(3)])
+    eig = np.linalg.eigvalsh(gram)
     return not eig[-1] > 0 or eig[0] <= (_FLATNESS_RATIO**2) * eig[-1]
 
 
