@@ -30,11 +30,14 @@ Two implementations share the tables and the vertex ordering (vertices sorted by
 
 from __future__ import annotations
 
-from typing import Any, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 
 from tetweave_codec.sh import degree_from_num_coeffs, sh_basis_terms, sh_parity
+
+if TYPE_CHECKING:  # torch is imported lazily: the numpy decoder path must not pay for it
+    import torch
 
 # Local edges of a tet as pairs of local vertex indices: edge e connects TET_EDGES[e, 0] and TET_EDGES[e, 1].
 TET_EDGES = np.array([[0, 1], [0, 2], [0, 3], [1, 2], [1, 3], [2, 3]], dtype=np.int64)
@@ -106,7 +109,13 @@ class MarchingTetsResult(NamedTuple):
     face_tets: Any
 
 
-def marching_tets(points, tets, s, c=None, hull_faces=None) -> MarchingTetsResult:
+def marching_tets(
+    points: torch.Tensor,
+    tets: torch.Tensor,
+    s: torch.Tensor,
+    c: torch.Tensor | None = None,
+    hull_faces: torch.Tensor | None = None,
+) -> MarchingTetsResult:
     """Directional marching tets in torch, differentiable w.r.t. `points`, `s` and `c`.
 
     Args:
