@@ -203,3 +203,14 @@ def test_directories_as_input_or_output(tw_file, tmp_path):
     assert_clean_failure(run("decode", tmp_path / "dir.tw"), message="not a regular file")
     (tmp_path / "dir.obj").mkdir()
     assert_clean_failure(run("decode", tw_file, "-o", tmp_path / "dir.obj"), message="is a directory")
+
+
+def test_decoding_does_not_import_torch():
+    """`tetweave decode` starts fast: the decode path is numpy only."""
+    import sys
+
+    code = (
+        "import sys, tetweave_codec.cli.decode, tetweave_codec.cli.info, tetweave_codec.decoder; "
+        "sys.exit('torch' in sys.modules)"
+    )
+    assert subprocess.run([sys.executable, "-c", code], timeout=120).returncode == 0
