@@ -147,8 +147,34 @@ def antialias(colors: Sequence[Tensor], face_id: Tensor, depth: Tensor, vertices
     for color in colors:
         flat = color.reshape(n_views * h * w, -1)
         diff = flat.index_select(0, source) - flat.index_select(0, target)
-        out.append(flat.index_add(0, target, weight.to(color.dtype)[:, None] * diff).view(color.shape))
+        out.append(add_rows(flat, target, weight.to(color.dtype)[:, None] * diff).view(color.shape))
     return out
+
+
+def add_rows(base: Tensor, index: Tensor, rows: Tensor, ordered: bool | None = None) -> Tensor:
+    """base.index_add(0, index, rows) (differentiable), summing repeated indices in a fixed order.
+
+    On the CPU index_add is sequential, hence deterministic. On other devices it uses atomics, whose order
+    varies from run to run; there (or with ordered=True) the rows are sorted by index and each index's rows
+    are summed in that order first, so that repeated runs give identical images.
+    """
+    if ordered is None:
+        ordered = base.device.type != "cpu"
+    if not ordered or index.numel() == 0:
+        return base.index_add(0, index, rows)
+    order = torch.sort(index, stable=True).indices
+    index, rows = index.index_select(0, order), rows.index_select(0, order)
+    first = torch.ones_like(index, dtype=torch.bool)
+    torch.ne(index[1:], index[:-1], out=first[1:])
+    starts = first.nonzero().squeeze(1)
+    ends = torch.cat([starts[1:], starts.new_tensor([index.numel()])])
+    width = int((ends - starts).max())
+    # Sum each segment by adding its k-th rows for k = 0, 1, ... (a fixed order, no atomics).
+    total = rows.index_select(0, starts)
+    for k in range(1, width):
+        has = (ends - starts > k).nonzero().squeeze(1)
+        total = total.index_add(0, has, rows.index_select(0, starts.index_select(0, has) + k))
+    return base.index_add(0, index.index_select(0, starts), total)
 
 
 def _silhouette_edges(vertices: Tensor, faces: Tensor, normals: Tensor, cameras: Cameras,
