@@ -8,6 +8,8 @@ from pathlib import Path
 import click
 from tetweave_codec.cli.common import configure_torch, device_option, threads_option
 
+VIEWS_PER_PASS = 4  # views rendered together: bounds memory for big meshes and images
+
 
 @click.command(context_settings={"show_default": True})
 @click.argument("mesh_or_tw", metavar="MESH_OR_TW", type=click.Path(dir_okay=False, path_type=Path))
@@ -27,7 +29,7 @@ def render(mesh_or_tw: Path, output: Path | None, views: int, size: int, shading
     import torch
 
     from tetweave_codec.meshio import load_mesh, normalize
-    from tetweave_codec.render import fibonacci_cameras, image_grid, render_maps, save_png, shade
+    from tetweave_codec.render import fibonacci_cameras, image_grid, mesh_edges, render_maps, save_png, shade
 
     output = output or mesh_or_tw.with_name(mesh_or_tw.name + ".png")
     if output.suffix.lower() != ".png":
@@ -44,11 +46,14 @@ def render(mesh_or_tw: Path, output: Path | None, views: int, size: int, shading
         vertices, faces = load_mesh(mesh_or_tw)
     normalized, _, _ = normalize(vertices)
     cams = fibonacci_cameras(views, device=dev)
+    images = []
     with torch.no_grad():
         verts = torch.as_tensor(normalized, dtype=torch.float32, device=dev)
         tris = torch.as_tensor(faces, dtype=torch.long, device=dev)
-        maps = render_maps(verts, tris, cams, size)
-        images = shade(maps, cams, mode=shading)
-    save_png(output, image_grid(images))
+        edges = mesh_edges(tris, len(verts))
+        for start in range(0, views, VIEWS_PER_PASS):
+            part = cams[start:start + VIEWS_PER_PASS]
+            images.append(shade(render_maps(verts, tris, part, size, edges=edges), part, mode=shading))
+    save_png(output, image_grid(torch.cat(images)))
     click.echo(f"wrote {output}: {views} views of {size}x{size} pixels, {len(faces):,} faces, "
                f"{time.perf_counter() - t0:.1f}s")
