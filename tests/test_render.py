@@ -412,6 +412,29 @@ def test_mask_loss_gradient_at_silhouette_vertices(device):
     _fd_check(mask_loss, verts, rows)
 
 
+def test_mask_loss_grows_and_shrinks_the_outline(device):
+    """The silhouette gradient points the right way: a sphere too small grows, too big shrinks, and a few
+    gradient steps on the mask loss alone bring its radius to the target's."""
+    unit, faces = _sphere(3, 1.0, device)
+    cams = fibonacci_cameras(3, device=device, dtype=torch.float64)
+    target = render_maps(unit * 0.7, faces, cams, 32).mask
+
+    def loss(radius):
+        return (render_maps(unit * radius, faces, cams, 32).mask - target).abs().mean()
+
+    for start, sign in ((0.55, -1.0), (0.85, 1.0)):
+        r = torch.tensor(start, dtype=torch.float64, device=device, requires_grad=True)
+        (g,) = torch.autograd.grad(loss(r), r)
+        assert g.item() * sign > 0
+    r = torch.tensor(0.55, dtype=torch.float64, device=device, requires_grad=True)
+    opt = torch.optim.Adam([r], lr=0.02)
+    for _ in range(40):
+        opt.zero_grad()
+        loss(r).backward()
+        opt.step()
+    assert abs(r.item() - 0.7) < 0.02
+
+
 def test_antialiased_coverage_is_continuous_and_has_the_right_slope(device):
     """Moving the right edge of a screen-aligned square: away from the corners every pixel row's mask sum is
     the covered length (continuous while the edge crosses pixel centres), and the gradient is one pixel per
