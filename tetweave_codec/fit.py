@@ -380,8 +380,20 @@ def fit(vertices: np.ndarray, faces: np.ndarray, config: FitConfig, device: torc
     vertices (V,3) float64 in [-0.9, 0.9]^3, faces (F,3) int64. Returns the float16 arrays to store.
     Raises TetweaveError if the fit ends with no surface at all.
     """
-    device = torch.device(device)
-    progress = progress or _noop_progress
+    # CPU index backward (index_put_ with accumulate) sums duplicates in a thread-dependent order when large: the
+    # surface term's gradients differed in the last bits between runs with 2 threads. Deterministic kernels make
+    # "same input, options and seed -> same bytes" hold; the previous setting is restored afterwards.
+    was_deterministic = torch.are_deterministic_algorithms_enabled()
+    was_warn_only = torch.is_deterministic_algorithms_warn_only_enabled()
+    torch.use_deterministic_algorithms(True, warn_only=True)
+    try:
+        return _fit(vertices, faces, config, torch.device(device), progress or _noop_progress)
+    finally:
+        torch.use_deterministic_algorithms(was_deterministic, warn_only=was_warn_only)
+
+
+def _fit(vertices: np.ndarray, faces: np.ndarray, config: FitConfig, device: torch.device,
+         progress: ProgressFn) -> FitResult:
     sch = config.schedule
     if config.sh_degree not in (0, 1, 2, 3):
         raise TetweaveError(f"SH degree must be 0..3, got {config.sh_degree}")
