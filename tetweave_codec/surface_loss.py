@@ -60,7 +60,7 @@ class SurfaceTarget:
         _, _, cp = self.tree.squared_distance(self.vertices, self.faces, np.ascontiguousarray(points, np.float64))
         return cp
 
-    def loss(self, vertices: Tensor, faces: Tensor, generator: torch.Generator, per_call: int = 20_000
+    def loss(self, vertices: Tensor, faces: Tensor, generator: torch.Generator, per_call: int = 8_000
              ) -> Tensor:
         """Symmetric point-to-surface Chamfer distance between the mesh (vertices (V,3), faces (F,3)) and the input.
 
