@@ -23,6 +23,7 @@ from torch import Tensor
 GOLDEN_ANGLE = math.pi * (3.0 - math.sqrt(5.0))  # radians between consecutive Fibonacci-sphere samples
 WORLD_UP = (0.0, 1.0, 0.0)
 FALLBACK_UP = (0.0, 0.0, 1.0)  # used when a camera looks (almost) straight along WORLD_UP
+MAX_IMAGE_SIDE = 1 << 15  # pixels; the rasterizer's box classes (rasterize.BOX_SIDES) go up to this
 
 
 def image_size(size: int | tuple[int, int]) -> tuple[int, int]:
@@ -31,8 +32,8 @@ def image_size(size: int | tuple[int, int]) -> tuple[int, int]:
         h = w = size
     else:
         h, w = (int(s) for s in size)
-    if h <= 0 or w <= 0:
-        raise ValueError(f"image size must be positive, got {size!r}")
+    if not (0 < h <= MAX_IMAGE_SIDE and 0 < w <= MAX_IMAGE_SIDE):
+        raise ValueError(f"image sides must be in 1..{MAX_IMAGE_SIDE}, got {size!r}")
     return h, w
 
 
