@@ -23,7 +23,7 @@ from torch import Tensor
 GOLDEN_ANGLE = math.pi * (3.0 - math.sqrt(5.0))  # radians between consecutive Fibonacci-sphere samples
 WORLD_UP = (0.0, 1.0, 0.0)
 FALLBACK_UP = (0.0, 0.0, 1.0)  # used when a camera looks (almost) straight along WORLD_UP
-MAX_IMAGE_SIDE = 1 << 15  # pixels; the rasterizer's box classes (rasterize.BOX_SIDES) go up to this
+MAX_IMAGE_SIDE = 1 << 15  # pixels; the rasterizer sizes its boxes with float32 log2, exact below 2**16
 
 
 def image_size(size: int | tuple[int, int]) -> tuple[int, int]:
