@@ -148,13 +148,13 @@ def _setup_view(plane: Tensor, flat_faces: Tensor, face_offset: int, view: int, 
         nrow.clamp_(-1, h - 1)
     ncol -= col0
     nrow -= row0
-    area2 = (x[1] - x[0]) * (y[2] - y[0]) - (x[2] - x[0]) * (y[1] - y[0])
     keep = (ncol >= 0) & (nrow >= 0)
     if not all_in_front:
         z = plane[2].index_select(0, flat_faces).view(3, n)
         keep &= torch.minimum(torch.minimum(z[0], z[1]), z[2]) > near
-    # In screen space (y down) a triangle whose normal faces the camera winds clockwise: area2 < 0.
-    keep &= (area2 < 0) if cull_backfaces else (area2 != 0)
+    if cull_backfaces:
+        # In screen space (y down) a triangle whose normal faces the camera winds clockwise: area2 < 0.
+        keep &= (x[1] - x[0]) * (y[2] - y[0]) < (x[2] - x[0]) * (y[1] - y[0])
     ncol += 1
     nrow += 1
     # Box level: ceil(log2(larger side)). float32 log2 is exact at powers of two and, for sides below 2**16,
@@ -172,7 +172,8 @@ def _setup_view(plane: Tensor, flat_faces: Tensor, face_offset: int, view: int, 
     face = torch.cat([m for _, m in groups]) if len(groups) > 1 else groups[0][1]  # kept faces, by level
     x, y = x.index_select(1, face), y.index_select(1, face)  # (3,P)
     z = plane[2].index_select(0, flat_faces.view(3, n).index_select(1, face).view(-1)).view(3, -1)
-    col0, row0, ncol, nrow, area2 = (t.index_select(0, face) for t in (col0, row0, ncol, nrow, area2))
+    col0, row0, ncol, nrow = (t.index_select(0, face) for t in (col0, row0, ncol, nrow))
+    area2 = (x[1] - x[0]) * (y[2] - y[0]) - (x[2] - x[0]) * (y[1] - y[0])
 
     # Edge k runs from vertex EDGE_START[k] = k+1 to EDGE_END[k] = k+2 (mod 3): rolled rows.
     xs, ys = x.roll(-1, 0), y.roll(-1, 0)
@@ -184,6 +185,7 @@ def _setup_view(plane: Tensor, flat_faces: Tensor, face_offset: int, view: int, 
     inv_az = 1.0 / (area2 * z)  # (3,P): 1/z = sum_k E_k / (area2 z_k)
     coef = torch.empty(12, face.numel(), dtype=x.dtype, device=x.device)
     torch.mul(e_first, inv_len, out=coef[0:3])
+    coef[0].masked_fill_(area2 == 0, -torch.inf)  # degenerate: covers nothing (and has no inverse depth)
     torch.mul(ey, inv_len.neg_(), out=coef[3:6])
     torch.mul(ex, inv_len.neg_(), out=coef[6:9])
     torch.sum(e_first * inv_az, 0, out=coef[9])
