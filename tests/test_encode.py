@@ -129,7 +129,7 @@ def _write_obj(path, text):
 
 
 @pytest.mark.parametrize("content,needle", [
-    (None, "not"),  # missing file
+    (None, "no such file"),  # missing file
     ("this is not a mesh at all\n\x00\x01", ""),  # unreadable
     ("# empty\n", "empty"),
     ("v nan 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", "nan"),
