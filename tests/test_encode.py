@@ -131,7 +131,7 @@ def _write_obj(path, text):
 @pytest.mark.parametrize("content,needle", [
     (None, "no such file"),  # missing file
     ("this is not a mesh at all\n\x00\x01", ""),  # unreadable
-    ("# empty\n", "empty"),
+    ("# empty\n", "no triangles"),
     ("v nan 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", "nan"),
 ])
 def test_cli_bad_mesh_inputs(tmp_path, content, needle):
