@@ -2,7 +2,8 @@
 
 Stages, each vectorized over all (view, triangle) pairs of a chunk:
 
-1. project the vertices to screen space once per view (`Cameras.project`);
+1. project the vertices to screen space once per view (`Cameras.project_planes`), shifted by half a pixel so
+   that pixel centres sit at integer coordinates;
 2. per (view, triangle) pair: cull pairs behind the near plane, degenerate or (optionally) back-facing, and
    compute the range of pixel centres inside the screen bounding box;
 3. group the surviving triangles by bounding-box size (the larger side rounded up to a power of two) and test
@@ -11,6 +12,9 @@ Stages, each vectorized over all (view, triangle) pairs of a chunk:
 4. scatter-reduce ("amin") a packed int64 key per covered candidate into the pixel buffer: high 32 bits =
    order of the depth, low 32 bits = face id. The minimum key is the nearest triangle, ties go to the lower
    face id, and integer min is order-independent, so the result is deterministic on every device.
+
+`zbuffer` is this visibility pass alone (what `render_maps` uses: it recomputes barycentrics and depth itself,
+with gradients); `rasterize` adds barycentrics and depth in the dtype of the vertices.
 
 A pixel centre within EDGE_TOLERANCE outside an edge counts as inside: triangles sharing an edge then overlap
 by a hair instead of leaving pinholes where rounding puts a centre outside both; the z-buffer resolves that.
