@@ -80,11 +80,16 @@ QUALITY: dict[str, Schedule] = {
 
 @dataclass(frozen=True)
 class Weights:
-    """Loss weights (paper Appendix A)."""
+    """Loss weights (paper Appendix A: mask 10, depth 250, normals 1, fairness 0.35, ODT 0.1, sign 1).
 
-    mask: float = 10.0
-    depth: float = 250.0
-    normals: float = 1.0
+    The image terms are the paper's weights scaled by 0.1. With the exact 3-D term present, renders at
+    CPU-affordable resolutions mostly add pixel-scale noise: spot at 8K points (120 + 60 iterations) reached
+    Chamfer 7.3e-4 with the paper's image weights, 5.1e-4 with a tenth of them and 4.3e-4 without them.
+    """
+
+    mask: float = 1.0
+    depth: float = 25.0
+    normals: float = 0.1
     fairness: float = 0.35
     odt: float = 0.1
     # The paper's 1.0 suppresses spurious surfaces grown from a random start. From the SDF start there are none,
