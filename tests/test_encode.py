@@ -181,7 +181,7 @@ def test_cli_encode_then_decode(tmp_path):
 
 @pytest.mark.slow
 def test_million_faces_encode_without_running_out_of_memory():
-    sphere = manifold3d.Manifold.sphere(1.0, 720)  # ~1M triangles
+    sphere = manifold3d.Manifold.sphere(1.0, 1400)  # ~1M triangles
     v, f = _mesh(sphere)
     assert len(f) > 900_000
     result = encode(v, f, points=2048, sh_degree=0, quality="fast", iters=20)
