@@ -54,20 +54,15 @@ def resolve_device(device: str | torch.device) -> torch.device:
 
 
 def _validate(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """float64 vertices and int64 faces, or InputError (meshio's checks, plus a surface to fit)."""
+    from tetweave_codec.meshio import validate_mesh
+
     v = np.asarray(vertices, dtype=np.float64)
-    f = np.asarray(faces)
-    if v.ndim != 2 or v.shape[1] != 3 or f.ndim != 2 or f.shape[1] != 3:
-        raise InputError("the mesh must have vertices (V,3) and triangle faces (F,3)")
-    if len(v) == 0 or len(f) == 0:
-        raise InputError("the mesh is empty (no vertices or no faces)")
-    if not np.isfinite(v).all():
-        raise InputError("the mesh has NaN or infinite vertex coordinates")
-    f = f.astype(np.int64)
-    if f.min() < 0 or f.max() >= len(v):
-        raise InputError("the mesh has face indices outside its vertex list")
-    used = v[np.unique(f)]
-    if float(np.ptp(used, axis=0).max()) <= 0.0:
-        raise InputError("the mesh is degenerate (all its vertices coincide)")
+    f = np.asarray(faces, dtype=np.int64)
+    validate_mesh(v, f)
+    tri = v[f]
+    if not np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1).any():
+        raise InputError("mesh: every triangle has zero area")
     return v, f
 
 

@@ -21,22 +21,10 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from tetweave_codec.metrics import sample_surface
+
 # Smoothing of sqrt at 0 (normalized units): far below any distance the fit resolves.
 _EPS = 1e-6
-
-
-def _sample_surface(vertices: np.ndarray, faces: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
-    """n area-weighted uniform samples (n,3) on the triangles."""
-    tri = vertices[faces]
-    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
-    total = area.sum()
-    prob = area / total if total > 0 else np.full(len(area), 1.0 / len(area))
-    face = rng.choice(len(faces), size=n, p=prob)
-    u, v = rng.random(n), rng.random(n)
-    flip = u + v > 1.0
-    u[flip], v[flip] = 1.0 - u[flip], 1.0 - v[flip]
-    t = tri[face]
-    return t[:, 0] + u[:, None] * (t[:, 1] - t[:, 0]) + v[:, None] * (t[:, 2] - t[:, 0])
 
 
 class SurfaceTarget:
@@ -53,7 +41,7 @@ class SurfaceTarget:
         self.faces = np.ascontiguousarray(faces, dtype=np.int64)
         self.tree = igl.AABB()
         self.tree.init(self.vertices, self.faces)
-        self.samples = _sample_surface(self.vertices, self.faces, n_samples, np.random.default_rng(seed))
+        self.samples, _ = sample_surface(self.vertices, self.faces, n_samples, seed)
 
     def closest_points(self, points: np.ndarray) -> np.ndarray:
         """Closest points (n,3) on the input surface to `points` (n,3)."""
