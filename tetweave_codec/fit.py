@@ -35,6 +35,7 @@ from tetweave_codec.delaunay import resolve_backend, tetrahedralize
 from tetweave_codec.errors import TetweaveError
 from tetweave_codec.initialize import initial_state, random_state
 from tetweave_codec.marching_tets import marching_tets
+from tetweave_codec.render import render_maps
 from tetweave_codec.resample import resample, voxel_importance
 from tetweave_codec.sh import num_coeffs
 from tetweave_codec.surface_loss import SurfaceTarget
@@ -201,7 +202,7 @@ def _regularized_loss(params: _Params, grid: _Grid, targets: Targets, views: Ten
     parts["sign"] = float(total.detach())
     if mt.faces.shape[0] > 0:
         cams, target_maps = targets.select(views)
-        maps = _render(mt.vertices, mt.faces, cams, schedule.size)
+        maps = render_maps(mt.vertices, mt.faces, cams, schedule.size)
         recon, recon_parts = _image_loss(maps, target_maps, weights)
         total = total + recon
         parts.update(recon_parts)
@@ -237,12 +238,6 @@ def _image_loss(maps, target_maps, weights: Weights) -> tuple[Tensor, dict[str, 
     return total, {"mask": float(mask.detach()), "depth": float(depth.detach()), "normals": float(normals.detach())}
 
 
-def _render(vertices: Tensor, faces: Tensor, cameras, size: int):
-    from tetweave_codec.render import render_maps
-
-    return render_maps(vertices, faces, cameras, size)
-
-
 def _importance(params: _Params, grid: _Grid, targets: Targets, schedule: Schedule,
                 generator: torch.Generator) -> tuple[Tensor, Tensor, Tensor] | None:
     """Voxel importance from the normal-map error of the current mesh (paper eq. importance).
@@ -256,7 +251,7 @@ def _importance(params: _Params, grid: _Grid, targets: Targets, schedule: Schedu
         n = min(IMPORTANCE_VIEWS, len(targets))
         views = torch.randperm(len(targets), generator=generator)[:n].to(params.points.device)
         cams, target_maps = targets.select(views)
-        maps = _render(mt.vertices, mt.faces, cams, schedule.size)
+        maps = render_maps(mt.vertices, mt.faces, cams, schedule.size)
         on_mesh = maps.fragments.face_id >= 0
         error = (maps.normals - target_maps.normals).abs().sum(-1)  # (B,H,W) L1 normal error
         world = cams.backproject(maps.depth)  # (B,H,W,3) surface points

@@ -38,10 +38,6 @@ class Targets:
     def __len__(self) -> int:
         return len(self.cameras)
 
-    @property
-    def size(self) -> tuple[int, int]:
-        return tuple(self.mask.shape[1:])  # type: ignore[return-value]
-
     def select(self, index: Tensor) -> tuple[Cameras, RenderMaps]:
         """The cameras and maps of views `index` (B,) long."""
         return self.cameras[index], RenderMaps(self.mask[index], self.depth[index], self.normals[index])
