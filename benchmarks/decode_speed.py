@@ -115,7 +115,7 @@ def main(argv: list[str] | None = None) -> int:
         for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
             os.environ[var] = str(args.threads)
 
-    from tetweave_codec.delaunay import resolve_backend
+    from tetweave_codec.geometry.delaunay import resolve_backend
 
     backend = resolve_backend(args.backend)
     baseline = None if args.baseline == "none" else resolve_backend(args.baseline)

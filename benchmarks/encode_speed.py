@@ -20,7 +20,7 @@ from pathlib import Path
 import torch
 from tetweave_codec.cli.common import parse_count
 
-from tetweave_codec.fit import QUALITY, FitConfig, LearningRates, Weights, fit
+from tetweave_codec.fit.loop import QUALITY, FitConfig, LearningRates, Weights, fit
 from tetweave_codec.meshio import load_mesh, normalize
 from tetweave_codec.metrics import chamfer_distance
 

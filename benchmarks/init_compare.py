@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from tetweave_codec.decoder import mesh_from_points
-from tetweave_codec.initialize import initial_state, random_state
+from tetweave_codec.fit.initialize import initial_state, random_state
 from tetweave_codec.meshio import load_mesh, normalize
 from tetweave_codec.metrics import chamfer_distance
 

@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from tetweave_codec.errors import ContainerError
-from tetweave_codec.sh import SH_DEGREE_MAX, SH_DEGREE_NONE
+from tetweave_codec.geometry.sh import SH_DEGREE_MAX, SH_DEGREE_NONE
 
 MAGIC = b"\x89TWV\r\n\x1a\n"
 VERSION = 1

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from tetweave_codec.active import active_mask, mixed_tets, one_ring_mask, passive_mask
-from tetweave_codec.delaunay import tetrahedralize
-from tetweave_codec.marching_tets import marching_tets_numpy
+from tetweave_codec.geometry.active import active_mask, mixed_tets, one_ring_mask, passive_mask
+from tetweave_codec.geometry.delaunay import tetrahedralize
+from tetweave_codec.geometry.marching_tets import marching_tets_numpy
 
 
 def test_hand_example():

@@ -13,8 +13,8 @@ from tetweave_codec.formats import tw
 from tetweave_codec.formats.tw import HEADER_SIZE, MAGIC, TetWeaveFile, backend_flags, pack, unpack
 
 from tetweave_codec.decoder import DecodeWarning, decode, decode_detailed, mesh_from_points
-from tetweave_codec.delaunay import available_backends
 from tetweave_codec.errors import ContainerError
+from tetweave_codec.geometry.delaunay import available_backends
 
 
 def make_file(

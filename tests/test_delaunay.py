@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from scipy.spatial import ConvexHull
 
-from tetweave_codec import delaunay as dl
-from tetweave_codec.delaunay import TET_OUTWARD_FACES, delaunay, orientation, resolve_backend, tetrahedralize
+from tetweave_codec.geometry import delaunay as dl
+from tetweave_codec.geometry.delaunay import TET_OUTWARD_FACES, delaunay, orientation, resolve_backend, tetrahedralize
 
 BACKENDS = dl.available_backends()
 

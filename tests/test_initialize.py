@@ -1,4 +1,4 @@
-"""Tests of tetweave_codec.initialize: signed distance (sign, robustness), initial points and states."""
+"""Tests of tetweave_codec.fit.initialize: signed distance (sign, robustness), initial points and states."""
 
 from __future__ import annotations
 
@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from tetweave_codec import initialize as ini
 from tetweave_codec.errors import InputError
+from tetweave_codec.fit import initialize as ini
 
 
 @pytest.fixture(scope="module")
@@ -157,8 +157,8 @@ def test_initial_state(box):
 
 def test_initial_state_extracts_the_input(sphere):
     """Delaunay + marching tets of the initial state already is the sphere, up to the grid's resolution."""
-    from tetweave_codec.delaunay import tetrahedralize
-    from tetweave_codec.marching_tets import marching_tets_numpy
+    from tetweave_codec.geometry.delaunay import tetrahedralize
+    from tetweave_codec.geometry.marching_tets import marching_tets_numpy
 
     v, f = sphere
     points, s, c = ini.initial_state(v, f, 2000, sh_degree=1, seed=5)

@@ -1,4 +1,4 @@
-"""Tests of tetweave_codec.losses: known values, paper formulas, gradient checks, degenerate input."""
+"""Tests of tetweave_codec.fit.losses: known values, paper formulas, gradient checks, degenerate input."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import pytest
 import torch
 from scipy.spatial import Delaunay
 
-from tetweave_codec import losses
+from tetweave_codec.fit import losses
 
 REGULAR_TET = torch.tensor([[1.0, 1, 1], [1, -1, -1], [-1, 1, -1], [-1, -1, 1]], dtype=torch.float64)
 

@@ -9,8 +9,8 @@ import torch
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from tetweave_codec.delaunay import available_backends, tetrahedralize
-from tetweave_codec.marching_tets import (
+from tetweave_codec.geometry.delaunay import available_backends, tetrahedralize
+from tetweave_codec.geometry.marching_tets import (
     TET_EDGES,
     TRIANGLE_TABLE,
     marching_tets,

@@ -1,4 +1,4 @@
-"""Tests of tetweave_codec.resample: importance grids, sampling, point location, interpolation, resample."""
+"""Tests of tetweave_codec.fit.resample: importance grids, sampling, point location, interpolation, resample."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import torch
 import trimesh
 from scipy.spatial import ConvexHull, Delaunay
 
-from tetweave_codec import resample as rs
+from tetweave_codec.fit import resample as rs
 
 LO = torch.tensor([-1.0, -1.0, -1.0])
 HI = torch.tensor([1.0, 1.0, 1.0])
@@ -195,7 +195,7 @@ def test_interpolate_outside_takes_nearest_point(grid_points):
 
 
 def test_interpolate_with_tetgen_grid():
-    from tetweave_codec.delaunay import delaunay
+    from tetweave_codec.geometry.delaunay import delaunay
 
     rng = np.random.default_rng(11)
     d = rng.normal(size=(2000, 3))

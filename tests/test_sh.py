@@ -7,7 +7,7 @@ import pytest
 import torch
 from scipy.special import sph_harm_y
 
-from tetweave_codec.sh import (
+from tetweave_codec.geometry.sh import (
     degree_from_num_coeffs,
     num_coeffs,
     sh_basis,

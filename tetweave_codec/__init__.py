@@ -6,16 +6,7 @@ Submodules are imported lazily so that `import tetweave_codec` stays cheap for t
 
 from __future__ import annotations
 
-import os as _os
-
 __version__ = "0.1.0"
-
-# In a source checkout, cli/ and formats/ sit at the repository's top level (design card) while installed they are
-# tetweave_codec.cli and tetweave_codec.formats (see pyproject.toml). Adding the checkout's root to this package's
-# search path makes the installed import names work from the checkout too, whichever copy Python finds first.
-_root = _os.path.dirname(_os.path.dirname(_os.path.abspath(__file__)))
-if _os.path.isfile(_os.path.join(_root, "pyproject.toml")) and _os.path.isdir(_os.path.join(_root, "formats")):
-    __path__.append(_root)  # type: ignore[name-defined]  # noqa: F821
 
 __all__ = ["decode", "encode", "__version__"]
 

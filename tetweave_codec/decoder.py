@@ -16,9 +16,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from tetweave_codec.delaunay import available_backends, tetrahedralize
-from tetweave_codec.marching_tets import marching_tets_numpy
-from tetweave_codec.sh import check_degree, num_coeffs
+from tetweave_codec.geometry.delaunay import available_backends, tetrahedralize
+from tetweave_codec.geometry.marching_tets import marching_tets_numpy
+from tetweave_codec.geometry.sh import check_degree, num_coeffs
 
 
 class DecodeWarning(UserWarning):

@@ -17,7 +17,7 @@ import numpy as np
 import torch
 
 from tetweave_codec.errors import InputError
-from tetweave_codec.fit import FitConfig, ProgressFn, fit, schedule_for
+from tetweave_codec.fit.loop import FitConfig, ProgressFn, fit, schedule_for
 
 DEFAULT_POINTS = 16384
 DEFAULT_SH_DEGREE = 1

@@ -29,17 +29,17 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from tetweave_codec import losses
-from tetweave_codec.active import active_mask, one_ring_mask
-from tetweave_codec.delaunay import resolve_backend, tetrahedralize
 from tetweave_codec.errors import TetweaveError
-from tetweave_codec.initialize import initial_state, random_state
-from tetweave_codec.marching_tets import marching_tets
+from tetweave_codec.fit import losses
+from tetweave_codec.fit.initialize import initial_state, random_state
+from tetweave_codec.fit.resample import resample, voxel_importance
+from tetweave_codec.fit.surface_loss import SurfaceTarget
+from tetweave_codec.fit.targets import Targets, render_targets
+from tetweave_codec.geometry.active import active_mask, one_ring_mask
+from tetweave_codec.geometry.delaunay import resolve_backend, tetrahedralize
+from tetweave_codec.geometry.marching_tets import marching_tets
+from tetweave_codec.geometry.sh import num_coeffs
 from tetweave_codec.render import render_maps
-from tetweave_codec.resample import resample, voxel_importance
-from tetweave_codec.sh import num_coeffs
-from tetweave_codec.surface_loss import SurfaceTarget
-from tetweave_codec.targets import Targets, render_targets
 
 # Points live in the normalized frame ([-0.9, 0.9]^3 holds the input); the grid may extend a little beyond it so
 # that outside points surround the surface, but nothing is gained farther out.

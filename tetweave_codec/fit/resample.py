@@ -1,7 +1,7 @@
 """Point cloud refinement (paper §4.3-§4.4): importance grids, sampling from them, resampling the points.
 
 A resampling step keeps the points that shape the mesh (active points and their one-ring, chosen by the caller
-with ``tetweave_codec.active``), drops the others and adds new points drawn from an importance grid over the
+with ``tetweave_codec.geometry.active``), drops the others and adds new points drawn from an importance grid over the
 current mesh: a voxel grid whose values are the mean rendering error of the pixels that land in each voxel
 (``voxel_importance``, paper eq. "importance") or 1 on the voxels the mesh touches (``uniform_importance``).
 New points get s and c by barycentric interpolation in the tetrahedron of the old triangulation that contains

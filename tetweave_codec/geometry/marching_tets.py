@@ -34,7 +34,7 @@ from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 
-from tetweave_codec.sh import degree_from_num_coeffs, sh_basis_terms, sh_parity
+from tetweave_codec.geometry.sh import degree_from_num_coeffs, sh_basis_terms, sh_parity
 
 if TYPE_CHECKING:  # torch is imported lazily: the numpy decoder path must not pay for it
     import torch
