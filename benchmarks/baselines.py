@@ -17,9 +17,7 @@ DECIMATE_KEEP = (0.20, 0.10, 0.05, 0.02)  # fraction of the input's faces kept
 DECIMATE_BITS = (11, 14)
 
 
-def draco_encode(
-    vertices: np.ndarray, faces: np.ndarray, quantization_bits: int, compression_level: int
-) -> bytes:
+def draco_encode(vertices: np.ndarray, faces: np.ndarray, quantization_bits: int, compression_level: int) -> bytes:
     import DracoPy
 
     return bytes(
@@ -87,9 +85,7 @@ class DecimateDracoMethod(Method):
 
     family = "decimate+draco"
 
-    def __init__(
-        self, keep: float, quantization_bits: int, compression_level: int = DRACO_COMPRESSION_LEVEL
-    ) -> None:
+    def __init__(self, keep: float, quantization_bits: int, compression_level: int = DRACO_COMPRESSION_LEVEL) -> None:
         if not 0.0 < keep <= 1.0:
             raise ValueError(f"keep must be in (0, 1], got {keep}")
         self.keep = float(keep)

@@ -99,9 +99,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--sizes", type=parse_sizes, default=parse_sizes(DEFAULT_SIZES),
                         help=f"point counts, k = 1024 (default: {DEFAULT_SIZES})")  # fmt: skip
-    parser.add_argument(
-        "--repeats", type=int, default=5, help="runs per size and backend; medians (default: 5)"
-    )
+    parser.add_argument("--repeats", type=int, default=5, help="runs per size and backend; medians (default: 5)")
     parser.add_argument("--threads", type=int, default=0,
                         help="cap numpy/BLAS/OpenMP threads (0: library defaults) (default: 0)")  # fmt: skip
     parser.add_argument("--backend", default="auto", help="backend under test (default: auto = TetGen)")

@@ -51,13 +51,19 @@ def _paper_style(vertices, faces, points: int, budget_s: float, quality: str, se
     paper_w = Weights(sign=1.0, surface=0.0)
     probe = replace(QUALITY[quality], main_iters=10, late_iters=5, resample_at=())
     t0 = time.perf_counter()
-    fit(normalized, faces, FitConfig(points=points, schedule=probe, weights=paper_w, lr=paper_lr, init="random",
-                                     seed=seed))
+    fit(
+        normalized,
+        faces,
+        FitConfig(points=points, schedule=probe, weights=paper_w, lr=paper_lr, init="random", seed=seed),
+    )
     per_iter = (time.perf_counter() - t0) / 15.0
     iters = max(20, int(budget_s / per_iter))
     sch = replace(QUALITY[quality], main_iters=int(iters * 0.7), late_iters=iters - int(iters * 0.7))
-    res = fit(normalized, faces, FitConfig(points=points, schedule=sch, weights=paper_w, lr=paper_lr, init="random",
-                                           seed=seed))
+    res = fit(
+        normalized,
+        faces,
+        FitConfig(points=points, schedule=sch, weights=paper_w, lr=paper_lr, init="random", seed=seed),
+    )
     v, f = mesh_from_points(res.points, res.s, res.c, res.sh_degree, backend=res.backend)
     if len(f) == 0:
         return float("inf"), iters
@@ -81,8 +87,11 @@ def main() -> None:
         keep = set(args.only.split(","))
         paths = [p for p in paths if p.stem in keep]
     print(f"torch threads {torch.get_num_threads()}, quality {args.quality}")
-    head = f"{'mesh':16} {'points':>6} " + " ".join(f"{s:>8}" for s in STAGES) + \
-        f" {'total s':>8} {'bytes':>8} {'kept':>6} {'chamfer':>9}"
+    head = (
+        f"{'mesh':16} {'points':>6} "
+        + " ".join(f"{s:>8}" for s in STAGES)
+        + f" {'total s':>8} {'bytes':>8} {'kept':>6} {'chamfer':>9}"
+    )
     if args.baseline:
         head += f" {'paper-style CD':>14} {'ratio':>6}"
     print(head)
@@ -90,8 +99,11 @@ def main() -> None:
         vertices, faces = load_mesh(path)
         for n in counts:
             row = _encode_once(vertices, faces, n, args.quality)
-            line = f"{path.stem:16} {n:>6} " + " ".join(f"{row[s]:>8.1f}" for s in STAGES) + \
-                f" {row['wall']:>8.1f} {row['bytes']:>8} {row['kept']:>6} {row['chamfer']:>9.2e}"
+            line = (
+                f"{path.stem:16} {n:>6} "
+                + " ".join(f"{row[s]:>8.1f}" for s in STAGES)
+                + f" {row['wall']:>8.1f} {row['bytes']:>8} {row['kept']:>6} {row['chamfer']:>9.2e}"
+            )
             if args.baseline:
                 cd, _ = _paper_style(vertices, faces, n, row["wall"], args.quality)
                 line += f" {cd:>14.2e} {cd / row['chamfer']:>6.1f}"

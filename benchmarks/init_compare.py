@@ -32,8 +32,7 @@ MESH_SUFFIXES = (".ply", ".obj", ".stl", ".off", ".glb")
 INITS = ("sdf", "random", "sphere")
 
 
-def run(paths: list[Path], counts: list[int], sh_degree: int = 1, seed: int = 0, samples: int = 100_000
-        ) -> list[dict]:
+def run(paths: list[Path], counts: list[int], sh_degree: int = 1, seed: int = 0, samples: int = 100_000) -> list[dict]:
     """One row per (mesh, point count, initialization); see the module docstring for the columns."""
     rows = []
     for path in paths:
@@ -50,22 +49,38 @@ def run(paths: list[Path], counts: list[int], sh_degree: int = 1, seed: int = 0,
                 t0 = time.perf_counter()
                 v_out, f_out = mesh_from_points(points, s, c, sh_degree)
                 t_extract = time.perf_counter() - t0
-                cd = (chamfer_distance(vertices, faces, v_out, f_out, n_samples=samples, seed=seed)
-                      if len(f_out) else math.inf)
-                rows.append({"mesh": path.stem, "faces_in": len(faces), "points": n, "init": init,
-                             "init_s": t_init, "extract_s": t_extract, "faces_out": len(f_out),
-                             "chamfer": cd})
+                cd = (
+                    chamfer_distance(vertices, faces, v_out, f_out, n_samples=samples, seed=seed)
+                    if len(f_out)
+                    else math.inf
+                )
+                rows.append(
+                    {
+                        "mesh": path.stem,
+                        "faces_in": len(faces),
+                        "points": n,
+                        "init": init,
+                        "init_s": t_init,
+                        "extract_s": t_extract,
+                        "faces_out": len(f_out),
+                        "chamfer": cd,
+                    }
+                )
                 print(_format_row(rows[-1]), flush=True)
     return rows
 
 
-HEADER = ("| mesh | input faces | points | init | init time (s) | extract time (s) | faces "
-          "| Chamfer (1e-3) |\n|---|---:|---:|---|---:|---:|---:|---:|")
+HEADER = (
+    "| mesh | input faces | points | init | init time (s) | extract time (s) | faces "
+    "| Chamfer (1e-3) |\n|---|---:|---:|---|---:|---:|---:|---:|"
+)
 
 
 def _format_row(r: dict) -> str:
-    return (f"| {r['mesh']} | {r['faces_in']} | {r['points']} | {r['init']} | {r['init_s']:.2f} | "
-            f"{r['extract_s']:.2f} | {r['faces_out']} | {r['chamfer'] * 1e3:.3f} |")
+    return (
+        f"| {r['mesh']} | {r['faces_in']} | {r['points']} | {r['init']} | {r['init_s']:.2f} | "
+        f"{r['extract_s']:.2f} | {r['faces_out']} | {r['chamfer'] * 1e3:.3f} |"
+    )
 
 
 def _mesh_paths(args: list[str], directory: Path) -> list[Path]:
@@ -77,8 +92,9 @@ def _mesh_paths(args: list[str], directory: Path) -> list[Path]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0],
-                                     formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    parser = argparse.ArgumentParser(
+        description=__doc__.splitlines()[0], formatter_class=argparse.ArgumentDefaultsHelpFormatter
+    )
     parser.add_argument("meshes", nargs="*", help="mesh files (default: every mesh in --meshes)")
     parser.add_argument("--meshes-dir", type=Path, default=DEFAULT_MESHES, help="directory of meshes")
     parser.add_argument("--points", default="4096,16384", help="comma-separated point counts")
@@ -92,8 +108,7 @@ def main(argv: list[str] | None = None) -> int:
     print("\nChamfer distance of the paper's starts relative to the SDF start (random s, sphere s):")
     for (mesh, n), group in _group(rows).items():
         sdf = group["sdf"]["chamfer"]
-        ratios = ", ".join(f"{group[k]['chamfer'] / sdf:.0f}x" if sdf > 0 else "n/a"
-                           for k in ("random", "sphere"))
+        ratios = ", ".join(f"{group[k]['chamfer'] / sdf:.0f}x" if sdf > 0 else "n/a" for k in ("random", "sphere"))
         print(f"  {mesh} @ {n}: {ratios}")
     return 0
 

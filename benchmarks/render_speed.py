@@ -69,6 +69,7 @@ def measure(n_faces: int, views: int, size: int, mode: str, device: torch.device
     if mode == "rasterize":
         return _time(lambda: rasterize(verts, faces, cams, size), repeats, device)
     if mode == "forward":
+
         def forward():
             with torch.no_grad():
                 render_maps(verts, faces, cams, size)
@@ -80,8 +81,11 @@ def measure(n_faces: int, views: int, size: int, mode: str, device: torch.device
     def step():
         v = verts.clone().requires_grad_(True)
         maps = render_maps(v, faces, cams, size)
-        loss = ((maps.mask - target.mask).abs().mean() + (maps.depth - target.depth).abs().mean()
-                + (maps.normals - target.normals).abs().mean())
+        loss = (
+            (maps.mask - target.mask).abs().mean()
+            + (maps.depth - target.depth).abs().mean()
+            + (maps.normals - target.normals).abs().mean()
+        )
         loss.backward()
 
     return _time(step, repeats, device)
@@ -99,8 +103,9 @@ def main(argv: list[str] | None = None) -> list[dict]:
     parser.add_argument("--sizes", default="256,512", help="comma-separated image sizes (pixels per side)")
     parser.add_argument("--views", type=int, default=4)
     parser.add_argument("--modes", default=",".join(MODES), help=f"comma-separated subset of {MODES}")
-    parser.add_argument("--device", choices=["auto", "cpu", "cuda"], default="auto",
-                        help="auto: the CPU, and CUDA too when present")
+    parser.add_argument(
+        "--device", choices=["auto", "cpu", "cuda"], default="auto", help="auto: the CPU, and CUDA too when present"
+    )
     parser.add_argument("--threads", type=int, default=0, help="torch CPU threads (0: torch's default)")
     parser.add_argument("--repeats", type=int, default=5, help="timed runs per configuration (median)")
     args = parser.parse_args(argv)
@@ -117,8 +122,10 @@ def main(argv: list[str] | None = None) -> list[dict]:
         parser.error(f"--modes must be a subset of {MODES}")
 
     baseline = measure(100_000, 4, 256, "forward", devices[0], args.repeats)
-    print(f"torch {torch.__version__}, {torch.get_num_threads()} CPU threads; baseline = 100K faces, "
-          f"4 views, 256², forward on {devices[0].type}: {baseline:.1f} ms")
+    print(
+        f"torch {torch.__version__}, {torch.get_num_threads()} CPU threads; baseline = 100K faces, "
+        f"4 views, 256², forward on {devices[0].type}: {baseline:.1f} ms"
+    )
     header = f"{'device':>6} {'faces':>9} {'views':>5} {'size':>5} {'mode':>9} {'median ms':>10} {'ratio':>7}"
     print(header)
     print("-" * len(header))
@@ -129,10 +136,22 @@ def main(argv: list[str] | None = None) -> list[dict]:
             for size in sizes:
                 for mode in modes:
                     ms = measure(n_faces, args.views, size, mode, device, args.repeats)
-                    rows.append(dict(device=device.type, faces=actual, views=args.views, size=size, mode=mode,
-                                     ms=ms, ratio=ms / baseline))
-                    print(f"{device.type:>6} {actual:>9,} {args.views:>5} {size:>5} {mode:>9} {ms:>10.1f} "
-                          f"{ms / baseline:>7.2f}", flush=True)
+                    rows.append(
+                        dict(
+                            device=device.type,
+                            faces=actual,
+                            views=args.views,
+                            size=size,
+                            mode=mode,
+                            ms=ms,
+                            ratio=ms / baseline,
+                        )
+                    )
+                    print(
+                        f"{device.type:>6} {actual:>9,} {args.views:>5} {size:>5} {mode:>9} {ms:>10.1f} "
+                        f"{ms / baseline:>7.2f}",
+                        flush=True,
+                    )
     return rows
 
 

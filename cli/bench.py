@@ -51,9 +51,7 @@ def _fractions(ctx, param, value: str) -> list[float]:
     try:
         out = [float(t.rstrip("%")) / (100.0 if t.endswith("%") else 1.0) for t in _split(value)]
     except ValueError:
-        raise click.BadParameter(
-            f"{value!r} is not a comma-separated list of fractions (0.1 or 10%)"
-        ) from None
+        raise click.BadParameter(f"{value!r} is not a comma-separated list of fractions (0.1 or 10%)") from None
     if not out or any(not 0.0 < x <= 1.0 for x in out):
         raise click.BadParameter(f"fractions must be in (0, 1], got {value!r}")
     return out
@@ -261,9 +259,7 @@ def bench(
             )
         ]
         if pictures:
-            jobs.append(
-                (f"side_by_side_{result.name}.png", lambda p: report.side_by_side(result, result.rows, p))
-            )
+            jobs.append((f"side_by_side_{result.name}.png", lambda p: report.side_by_side(result, result.rows, p)))
         for name, job in jobs:
             try:
                 if job(out_dir / name):

@@ -15,11 +15,7 @@ DEFAULT_SUFFIX = ".decoded.obj"
 
 def default_output(path: Path) -> Path:
     """FILE.tw -> FILE.decoded.obj beside it (never the input itself)."""
-    return (
-        path.with_name(path.stem + DEFAULT_SUFFIX)
-        if path.suffix
-        else path.with_name(path.name + DEFAULT_SUFFIX)
-    )
+    return path.with_name(path.stem + DEFAULT_SUFFIX) if path.suffix else path.with_name(path.name + DEFAULT_SUFFIX)
 
 
 def read_tw_bytes(path: Path) -> bytes:

@@ -18,9 +18,7 @@ def _box(lo: np.ndarray, hi: np.ndarray) -> str:
 
 @click.command(context_settings={"show_default": True})
 @click.argument("file", type=click.Path(path_type=Path))
-@click.option(
-    "--mesh", is_flag=True, help="Also decode FILE and report the mesh: counts and exact bounding box."
-)
+@click.option("--mesh", is_flag=True, help="Also decode FILE and report the mesh: counts and exact bounding box.")
 def info(file: Path, mesh: bool) -> None:
     """Describe FILE (a .tw file): version, points, SH degree, byte sizes, bounding box.
 

@@ -26,9 +26,7 @@ def write_sphere(path: Path, n: int = 2000, sign: float = 1.0) -> bytes:
     pts = rng.uniform(-1, 1, (n, 3))
     s = sign * (np.linalg.norm(pts, axis=1) - 0.6)
     c = rng.normal(size=(n, 4)) * 0.2
-    data = pack(
-        TetWeaveFile(pts.astype(np.float16), s.astype(np.float16), c.astype(np.float16), 1, 5.0, OFFSET)
-    )
+    data = pack(TetWeaveFile(pts.astype(np.float16), s.astype(np.float16), c.astype(np.float16), 1, 5.0, OFFSET))
     path.write_bytes(data)
     return data
 
@@ -150,9 +148,7 @@ def test_missing_input_and_directories(tmp_path):
 
 
 def test_bad_outputs_fail_before_writing(tw_file, tmp_path):
-    assert_clean_failure(
-        run("decode", tw_file, "-o", tmp_path / "out.xyz"), message="unsupported output format"
-    )
+    assert_clean_failure(run("decode", tw_file, "-o", tmp_path / "out.xyz"), message="unsupported output format")
     assert_clean_failure(run("decode", tw_file, "-o", tmp_path / "no" / "dir.obj"), message="does not exist")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["shape.tw"]
 
@@ -185,9 +181,7 @@ def test_installed_command_in_a_subprocess(tw_file, tmp_path):
     if exe is None:
         pytest.skip("the tetweave console script is not installed")
     out = tmp_path / "sub.ply"
-    done = subprocess.run(
-        [exe, "decode", str(tw_file), "-o", str(out)], capture_output=True, text=True, timeout=120
-    )
+    done = subprocess.run([exe, "decode", str(tw_file), "-o", str(out)], capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
     assert out.is_file() and "faces" in done.stdout
     bad = tmp_path / "bad.tw"

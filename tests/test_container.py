@@ -17,9 +17,7 @@ from tetweave_codec.errors import ContainerError
 from tetweave_codec.geometry.delaunay import available_backends
 
 
-def make_file(
-    n: int = 20, degree: int = 2, seed: int = 0, flags: int = 0, scale=2.5, offset=(1.0, -2.0, 0.5)
-):
+def make_file(n: int = 20, degree: int = 2, seed: int = 0, flags: int = 0, scale=2.5, offset=(1.0, -2.0, 0.5)):
     rng = np.random.default_rng(seed)
     q = (degree + 1) ** 2
     return TetWeaveFile(

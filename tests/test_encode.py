@@ -128,12 +128,15 @@ def _write_obj(path, text):
     return path
 
 
-@pytest.mark.parametrize("content,needle", [
-    (None, "no such file"),  # missing file
-    ("this is not a mesh at all\n\x00\x01", ""),  # unreadable
-    ("# empty\n", "no triangles"),
-    ("v nan 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", "nan"),
-])
+@pytest.mark.parametrize(
+    "content,needle",
+    [
+        (None, "no such file"),  # missing file
+        ("this is not a mesh at all\n\x00\x01", ""),  # unreadable
+        ("# empty\n", "no triangles"),
+        ("v nan 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", "nan"),
+    ],
+)
 def test_cli_bad_mesh_inputs(tmp_path, content, needle):
     src = tmp_path / "in.obj"
     if content is not None:
@@ -148,10 +151,17 @@ def test_cli_bad_mesh_inputs(tmp_path, content, needle):
     assert not any(p.name.startswith(".") or p.suffix == ".tmp" for p in tmp_path.iterdir())
 
 
-@pytest.mark.parametrize("args", [
-    ["--points", "lots"], ["--points", "-5"], ["--sh-degree", "7"], ["--quality", "ultra"], ["--iters", "0"],
-    ["--device", "tpu"],
-])
+@pytest.mark.parametrize(
+    "args",
+    [
+        ["--points", "lots"],
+        ["--points", "-5"],
+        ["--sh-degree", "7"],
+        ["--quality", "ultra"],
+        ["--iters", "0"],
+        ["--device", "tpu"],
+    ],
+)
 def test_cli_nonsense_options(tmp_path, args):
     src = tmp_path / "in.obj"
     _write_obj(src, "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n")

@@ -95,15 +95,15 @@ def test_initial_points_layout(sphere):
     p32 = pts.astype(np.float32)
     assert len(np.unique(p32, axis=0)) == n
     # the shell: surface points lie within shell * spacing of the sphere, and not closer than the gap
-    area = 4 * np.pi * 0.8 ** 2
+    area = 4 * np.pi * 0.8**2
     n_uniform = round(ini.UNIFORM_FRACTION * n)
     n_surface = n - ini.N_CORNERS - n_uniform
     half_width = ini.SHELL * np.sqrt(area / n_surface)
-    dist = np.abs(np.linalg.norm(pts[ini.N_CORNERS + n_uniform:], axis=1) - 0.8)
+    dist = np.abs(np.linalg.norm(pts[ini.N_CORNERS + n_uniform :], axis=1) - 0.8)
     assert dist.max() < half_width + 3e-3
     assert dist.min() > ini.SHELL_GAP * half_width - 3e-3
     # both sides of the surface are populated
-    radial = np.linalg.norm(pts[ini.N_CORNERS + n_uniform:], axis=1) - 0.8
+    radial = np.linalg.norm(pts[ini.N_CORNERS + n_uniform :], axis=1) - 0.8
     assert 0.4 < (radial < 0).mean() < 0.6
 
 
@@ -166,7 +166,7 @@ def test_initial_state_extracts_the_input(sphere):
     mt = marching_tets_numpy(points, tt.tets, s, c)
     assert len(mt.faces) > 1000
     radial = np.linalg.norm(mt.vertices, axis=1) - 0.8
-    spacing = np.sqrt(4 * np.pi * 0.8 ** 2 / 1800)
+    spacing = np.sqrt(4 * np.pi * 0.8**2 / 1800)
     assert np.abs(radial).max() < 0.25 * spacing
     assert np.abs(radial).mean() < 0.05 * spacing
     # closed: every edge is shared by exactly two faces

@@ -31,13 +31,15 @@ def _paper_odt(v: np.ndarray) -> float:
     radius2 = np.sum((center - v[0]) ** 2)
     m_s = 2 / 5 * volume * radius2
     rel = v - center
-    s = [np.sum(rel[:, k] ** 2) + sum(rel[i, k] * rel[j, k] for i in range(4) for j in range(i + 1, 4))
-         for k in range(3)]
+    s = [
+        np.sum(rel[:, k] ** 2) + sum(rel[i, k] * rel[j, k] for i in range(4) for j in range(i + 1, 4)) for k in range(3)
+    ]
     ix, iy, iz = volume / 10 * (s[1] + s[2]), volume / 10 * (s[0] + s[2]), volume / 10 * (s[0] + s[1])
     return abs(m_s - (ix + iy + iz))
 
 
 # --- ODT ---
+
 
 def test_odt_matches_paper_formulas_on_random_tets():
     v = _random_tets(50, seed=1)
@@ -113,8 +115,9 @@ def test_odt_gradcheck(reduction):
 
 
 def test_odt_gradient_moves_towards_regular():
-    points = (REGULAR_TET + 0.2 * torch.randn(4, 3, generator=torch.Generator().manual_seed(6),
-                                              dtype=torch.float64)).requires_grad_(True)
+    points = (
+        REGULAR_TET + 0.2 * torch.randn(4, 3, generator=torch.Generator().manual_seed(6), dtype=torch.float64)
+    ).requires_grad_(True)
     tets = torch.tensor([[0, 1, 2, 3]])
     value = losses.odt_loss(points, tets)
     value.backward()
@@ -126,13 +129,32 @@ def test_odt_gradient_moves_towards_regular():
 @pytest.mark.parametrize("reduction", losses.ODT_REDUCTIONS)
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
 def test_odt_degenerate_tets_are_finite(reduction, dtype):
-    points = torch.tensor([
-        [0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0],        # flat, cocircular
-        [0, 0, 0], [1, 0, 0], [0, 1, 0], [0.3, 0.2, 0],    # flat, not cocircular
-        [0, 0, 0], [1, 0, 0], [2, 0, 0], [3, 0, 0],        # collinear
-        [0.5, 0.5, 0.5], [0.5, 0.5, 0.5], [0.5, 0.5, 0.5], [0.5, 0.5, 0.5],  # coincident
-        [0, 0, 0], [1, 0, 0], [0, 1, 0], [0.3, 0.2, 1e-9],  # almost flat
-    ], dtype=dtype, requires_grad=True)
+    points = torch.tensor(
+        [
+            [0, 0, 0],
+            [1, 0, 0],
+            [0, 1, 0],
+            [1, 1, 0],  # flat, cocircular
+            [0, 0, 0],
+            [1, 0, 0],
+            [0, 1, 0],
+            [0.3, 0.2, 0],  # flat, not cocircular
+            [0, 0, 0],
+            [1, 0, 0],
+            [2, 0, 0],
+            [3, 0, 0],  # collinear
+            [0.5, 0.5, 0.5],
+            [0.5, 0.5, 0.5],
+            [0.5, 0.5, 0.5],
+            [0.5, 0.5, 0.5],  # coincident
+            [0, 0, 0],
+            [1, 0, 0],
+            [0, 1, 0],
+            [0.3, 0.2, 1e-9],  # almost flat
+        ],
+        dtype=dtype,
+        requires_grad=True,
+    )
     tets = torch.arange(points.shape[0]).reshape(-1, 4)
     value = losses.odt_loss(points, tets, reduction)
     value.backward()
@@ -155,6 +177,7 @@ def test_odt_empty():
 
 # --- fairness ---
 
+
 def test_fairness_equilateral_is_zero():
     v = torch.tensor([[0.0, 0, 0], [1, 0, 0], [0.5, math.sqrt(3) / 2, 0]], dtype=torch.float64)
     assert float(losses.fairness_loss(v, torch.tensor([[0, 1, 2]]))) == pytest.approx(0.0, abs=1e-14)
@@ -164,12 +187,11 @@ def test_fairness_right_isoceles_by_hand():
     # angles pi/2, pi/4, pi/4: ((pi/6)^2 + 2 (pi/12)^2) / 3 = pi^2 / 72
     v = torch.tensor([[0.0, 0, 0], [2, 0, 0], [0, 2, 0]], dtype=torch.float64)
     value = float(losses.fairness_loss(v, torch.tensor([[0, 1, 2]])))
-    assert value == pytest.approx(math.pi ** 2 / 72, rel=1e-12)
+    assert value == pytest.approx(math.pi**2 / 72, rel=1e-12)
 
 
 def test_fairness_mean_over_faces():
-    v = torch.tensor([[0.0, 0, 0], [2, 0, 0], [0, 2, 0], [1, 0, 0], [1.5, math.sqrt(3) / 2, 0]],
-                     dtype=torch.float64)
+    v = torch.tensor([[0.0, 0, 0], [2, 0, 0], [0, 2, 0], [1, 0, 0], [1.5, math.sqrt(3) / 2, 0]], dtype=torch.float64)
     faces = torch.tensor([[0, 1, 2], [0, 3, 4]])
     angles = losses.triangle_angles(v, faces)
     torch.testing.assert_close(angles.sum(-1), torch.full((2,), math.pi, dtype=torch.float64))
@@ -186,16 +208,30 @@ def test_fairness_gradcheck():
 
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
 def test_fairness_degenerate_no_nan(dtype):
-    v = torch.tensor([[0, 0, 0], [1, 0, 0], [2, 0, 0],   # collinear
-                      [3, 3, 3], [3, 3, 3], [4, 3, 3],   # two coincident vertices
-                      [5, 5, 5], [5, 5, 5], [5, 5, 5],   # all coincident
-                      [0, 1, 0], [1, 1, 0], [0, 2, 0]], dtype=dtype, requires_grad=True)
+    v = torch.tensor(
+        [
+            [0, 0, 0],
+            [1, 0, 0],
+            [2, 0, 0],  # collinear
+            [3, 3, 3],
+            [3, 3, 3],
+            [4, 3, 3],  # two coincident vertices
+            [5, 5, 5],
+            [5, 5, 5],
+            [5, 5, 5],  # all coincident
+            [0, 1, 0],
+            [1, 1, 0],
+            [0, 2, 0],
+        ],
+        dtype=dtype,
+        requires_grad=True,
+    )
     faces = torch.arange(12).reshape(-1, 3)
     value = losses.fairness_loss(v, faces)
     value.backward()
     assert torch.isfinite(value) and bool(torch.isfinite(v.grad).all())
     # collinear face (0, 0, pi) and the right isosceles face are kept, the ones with zero-length edges skipped
-    expected = ((2 * (math.pi / 3) ** 2 + (2 * math.pi / 3) ** 2) / 3 + math.pi ** 2 / 72) / 2
+    expected = ((2 * (math.pi / 3) ** 2 + (2 * math.pi / 3) ** 2) / 3 + math.pi**2 / 72) / 2
     assert value.item() == pytest.approx(expected, rel=1e-5)
 
 
@@ -209,6 +245,7 @@ def test_fairness_empty_and_all_degenerate():
 
 # --- sign ---
 
+
 def test_sign_loss_known_value():
     s = torch.tensor([-0.5, 0.25, 1.0, 2.0], dtype=torch.float64)
     edges = torch.tensor([[0, 1], [1, 2], [2, 0], [3, 2]])  # sign changes on (0,1) and (2,0)
@@ -217,8 +254,9 @@ def test_sign_loss_known_value():
     def bce(p, y):
         return -(y * math.log(p) + (1 - y) * math.log(1 - p))
 
-    expected = (bce(float(sig(s[0])), 1) + bce(float(sig(s[1])), 0) + bce(float(sig(s[2])), 0)
-                + bce(float(sig(s[0])), 1)) / 2
+    expected = (
+        bce(float(sig(s[0])), 1) + bce(float(sig(s[1])), 0) + bce(float(sig(s[2])), 0) + bce(float(sig(s[0])), 1)
+    ) / 2
     assert float(losses.sign_loss(s, edges)) == pytest.approx(expected, rel=1e-12)
 
 
@@ -253,12 +291,14 @@ def test_sign_loss_no_change_is_zero():
 
 # --- images ---
 
+
 def _maps(seed: int, b: int = 2, h: int = 5, w: int = 4) -> dict[str, torch.Tensor]:
     g = torch.Generator().manual_seed(seed)
-    return {"mask": (torch.rand(b, h, w, generator=g) > 0.5).double(),
-            "depth": torch.rand(b, h, w, generator=g, dtype=torch.float64),
-            "normals": torch.nn.functional.normalize(
-                torch.randn(b, h, w, 3, generator=g, dtype=torch.float64), dim=-1)}
+    return {
+        "mask": (torch.rand(b, h, w, generator=g) > 0.5).double(),
+        "depth": torch.rand(b, h, w, generator=g, dtype=torch.float64),
+        "normals": torch.nn.functional.normalize(torch.randn(b, h, w, 3, generator=g, dtype=torch.float64), dim=-1),
+    }
 
 
 def test_reconstruction_loss_by_hand():
@@ -294,7 +334,7 @@ def test_reconstruction_loss_weights_and_object_input():
     total, parts = losses.reconstruction_loss(Maps(maps), Maps(targets), weights, norm="l2")
     assert set(parts) == {"mask", "normals"}
     diff = targets["mask"].unsqueeze(-1) * (maps["normals"] - targets["normals"])
-    l2 = torch.sqrt((diff ** 2).sum(-1) + 1e-8)
+    l2 = torch.sqrt((diff**2).sum(-1) + 1e-8)
     torch.testing.assert_close(parts["normals"], l2.mean())
     torch.testing.assert_close(total, 10 * parts["mask"] + 2 * parts["normals"])
     with pytest.raises(ValueError):

@@ -67,9 +67,7 @@ def test_sphere_against_scaled_sphere_is_the_radius_difference():
     assert cd == pytest.approx(0.05, rel=0.01)
     # normalized: the first sphere's bbox (longest side ~2) becomes 1.8, so distances scale by 1.8 / side
     side = float((v.max(0) - v.min(0)).max())
-    assert M.chamfer_distance(v, f, 1.05 * v, f, n_samples=20_000) == pytest.approx(
-        0.05 * 1.8 / side, rel=0.01
-    )
+    assert M.chamfer_distance(v, f, 1.05 * v, f, n_samples=20_000) == pytest.approx(0.05 * 1.8 / side, rel=0.01)
     r = M.compare_meshes(v, f, 1.05 * v, f, FAST)
     assert r["hausdorff"] == pytest.approx(0.05 * 1.8 / side, rel=0.01)
     assert r["f1@0.001"] == 0.0 and r["f1@0.005"] == 0.0
@@ -199,9 +197,7 @@ def test_single_triangle_quality(tri, aspect, radius, angle):
 
 def test_degenerate_triangle_is_worst_quality():
     q = M.triangle_quality(np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0]], float), np.array([[0, 1, 2]]))
-    assert (
-        q["aspect_ratio"][0] == math.inf and q["radius_ratio"][0] == math.inf and q["min_angle_deg"][0] == 0
-    )
+    assert q["aspect_ratio"][0] == math.inf and q["radius_ratio"][0] == math.inf and q["min_angle_deg"][0] == 0
 
 
 def test_quality_percentages():

@@ -32,8 +32,9 @@ rasterize_module = sys.modules["tetweave_codec.render.rasterize"]
 
 DEVICES = [
     "cpu",
-    pytest.param("cuda", marks=[pytest.mark.cuda,
-                                pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device")]),
+    pytest.param(
+        "cuda", marks=[pytest.mark.cuda, pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device")]
+    ),
 ]
 
 
@@ -44,8 +45,10 @@ def device(request) -> torch.device:
 
 def _sphere(subdivisions: int, radius: float, device, dtype=torch.float64):
     m = trimesh.creation.icosphere(subdivisions=subdivisions, radius=radius)
-    return (torch.tensor(m.vertices, dtype=dtype, device=device),
-            torch.tensor(m.faces, dtype=torch.long, device=device))
+    return (
+        torch.tensor(m.vertices, dtype=dtype, device=device),
+        torch.tensor(m.faces, dtype=torch.long, device=device),
+    )
 
 
 def _front_camera(device, dtype=torch.float64, distance: float = 3.0) -> Cameras:
@@ -140,7 +143,7 @@ def test_sphere_silhouette_area_matches_projected_disc(device, size):
     assert torch.all((aa - disc).abs() < (covered - disc).abs() + 0.5)
     # depth at the image centre: the sphere's nearest point
     c = size // 2
-    centre_depth = maps.depth[:, c - 1:c + 1, c - 1:c + 1]
+    centre_depth = maps.depth[:, c - 1 : c + 1, c - 1 : c + 1]
     assert torch.allclose(centre_depth, torch.full_like(centre_depth, 3.0 - radius), atol=2e-3)
 
 
@@ -155,7 +158,7 @@ def test_occlusion_of_overlapping_triangles(device):
         frags = rasterize(verts, faces, cams, 64)
         fid = frags.face_id[0]
         # rasterize each triangle alone to know where it lies
-        alone = [rasterize(verts, faces[i:i + 1], cams, 64).face_id[0] >= 0 for i in range(2)]
+        alone = [rasterize(verts, faces[i : i + 1], cams, 64).face_id[0] >= 0 for i in range(2)]
         both = alone[0] & alone[1]
         assert both.sum() > 100 and (alone[0] ^ alone[1]).sum() > 100
         assert bool((fid[both] == near_id).all())
@@ -167,10 +170,21 @@ def test_occlusion_of_overlapping_triangles(device):
 
 def test_triangles_behind_or_crossing_the_camera_are_culled(device):
     cams = _front_camera(device)
-    verts = torch.tensor([[-1, -1, 4.0], [1, -1, 4.0], [0, 1, 4.0],  # behind the eye (z = 3)
-                          [-1, -1, 3.5], [1, -1, 2.0], [0, 1, 2.0],  # crosses the camera plane
-                          [-0.2, -0.2, 0.0], [0.2, -0.2, 0.0], [0.0, 0.2, 0.0]], dtype=torch.float64,
-                         device=device)
+    verts = torch.tensor(
+        [
+            [-1, -1, 4.0],
+            [1, -1, 4.0],
+            [0, 1, 4.0],  # behind the eye (z = 3)
+            [-1, -1, 3.5],
+            [1, -1, 2.0],
+            [0, 1, 2.0],  # crosses the camera plane
+            [-0.2, -0.2, 0.0],
+            [0.2, -0.2, 0.0],
+            [0.0, 0.2, 0.0],
+        ],
+        dtype=torch.float64,
+        device=device,
+    )
     faces = torch.tensor([[0, 1, 2], [3, 4, 5], [6, 7, 8]], device=device)
     maps = render_maps(verts, faces, cams, 32)
     ids = maps.fragments.face_id.unique().tolist()
@@ -463,8 +477,10 @@ def test_mesh_edges_pairs_faces_and_marks_boundaries():
     faces = torch.tensor([[0, 1, 2], [0, 2, 3], [2, 1, 4]])
     e = mesh_edges(faces)
     assert e.ends.shape[0] == 7
-    pairs = {tuple(sorted(map(int, ab))): (tuple(map(int, f)), bool(c))
-             for ab, f, c in zip(e.ends, e.faces, e.consistent, strict=True)}
+    pairs = {
+        tuple(sorted(map(int, ab))): (tuple(map(int, f)), bool(c))
+        for ab, f, c in zip(e.ends, e.faces, e.consistent, strict=True)
+    }
     assert pairs[(0, 2)][0] == (0, 1) and pairs[(0, 2)][1]
     assert pairs[(1, 2)][0] == (0, 2) and pairs[(1, 2)][1]  # face 2 runs 2 -> 1, face 0 runs 1 -> 2
     assert sum(f[1] == -1 for f, _ in pairs.values()) == 5

@@ -20,8 +20,13 @@ def _tiles(png, size: int, n: int, pad: int = 4):
     cols = int(np.ceil(np.sqrt(n)))
     rows = int(np.ceil(n / cols))
     assert img.shape == (rows * size + pad * (rows + 1), cols * size + pad * (cols + 1), 3)
-    return [img[pad + r * (size + pad):pad + r * (size + pad) + size, pad + c * (size + pad):
-                pad + c * (size + pad) + size] for r, c in (divmod(i, cols) for i in range(n))]
+    return [
+        img[
+            pad + r * (size + pad) : pad + r * (size + pad) + size,
+            pad + c * (size + pad) : pad + c * (size + pad) + size,
+        ]
+        for r, c in (divmod(i, cols) for i in range(n))
+    ]
 
 
 def test_render_a_mesh_to_a_png_beside_it(tmp_path):
@@ -58,9 +63,14 @@ def test_render_a_tw_file(tmp_path):
     g = np.random.default_rng(0)
     points = g.uniform(-1.0, 1.0, (600, 3))
     s = np.linalg.norm(points, axis=1) - 0.6  # a sphere of radius 0.6
-    tw = tw_module.TetWeaveFile(points=points.astype(np.float16), s=s.astype(np.float16),
-                                c=np.zeros((600, 1), np.float16), sh_degree=0, scale=2.0,
-                                offset=np.zeros(3))
+    tw = tw_module.TetWeaveFile(
+        points=points.astype(np.float16),
+        s=s.astype(np.float16),
+        c=np.zeros((600, 1), np.float16),
+        sh_degree=0,
+        scale=2.0,
+        offset=np.zeros(3),
+    )
     path = tmp_path / "ball.tw"
     path.write_bytes(tw_module.pack(tw))
     result = _run(str(path), "--views", "2", "--size", "40")
@@ -70,8 +80,9 @@ def test_render_a_tw_file(tmp_path):
         assert 0.2 < covered.mean() < 0.8
 
 
-@pytest.mark.parametrize("content, suffix", [(None, ".ply"), (b"not a mesh", ".ply"), (b"TW garbage", ".tw"),
-                                             (b"", ".obj")])
+@pytest.mark.parametrize(
+    "content, suffix", [(None, ".ply"), (b"not a mesh", ".ply"), (b"TW garbage", ".tw"), (b"", ".obj")]
+)
 def test_bad_input_is_one_line_and_exit_2(tmp_path, content, suffix):
     path = tmp_path / f"bad{suffix}"
     if content is not None:

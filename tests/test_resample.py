@@ -41,9 +41,15 @@ def grid_points():
 
 def test_voxel_importance_known_splat():
     r = 4
-    pts = torch.stack([_voxel_center(0, 0, 0, r), _voxel_center(0, 0, 0, r) + 0.1, _voxel_center(3, 1, 2, r),
-                       torch.tensor([5.0, 0.0, 0.0]),  # outside: ignored
-                       HI])  # on the max corner: last voxel
+    pts = torch.stack(
+        [
+            _voxel_center(0, 0, 0, r),
+            _voxel_center(0, 0, 0, r) + 0.1,
+            _voxel_center(3, 1, 2, r),
+            torch.tensor([5.0, 0.0, 0.0]),  # outside: ignored
+            HI,
+        ]
+    )  # on the max corner: last voxel
     err = torch.tensor([1.0, 3.0, 0.5, 100.0, 7.0])
     grid = rs.voxel_importance(pts, err, LO, HI, resolution=r)
     assert grid.shape == (r, r, r) and grid.dtype == torch.float32
@@ -180,8 +186,9 @@ def test_interpolate_reproduces_linear_functions(grid_points):
     out = rs.interpolate_in_tets(pts, tets, _linear(pts), q)
     np.testing.assert_allclose(out[inside], _linear(q)[inside], atol=1e-12)
     # torch values: result on their dtype/device; 1-D values stay 1-D
-    out_t = rs.interpolate_in_tets(torch.from_numpy(pts), torch.from_numpy(tets),
-                                   torch.from_numpy(_linear(pts)[:, 0]).float(), torch.from_numpy(q))
+    out_t = rs.interpolate_in_tets(
+        torch.from_numpy(pts), torch.from_numpy(tets), torch.from_numpy(_linear(pts)[:, 0]).float(), torch.from_numpy(q)
+    )
     assert out_t.dtype == torch.float32 and out_t.shape == (3000,)
     np.testing.assert_allclose(out_t.numpy()[inside], _linear(q)[inside, 0], atol=1e-5)
 
@@ -228,8 +235,9 @@ def test_resample_keeps_and_fills(grid_points):
     grid[2:6, 2:6, 2:6] = torch.rand(4, 4, 4, generator=torch.Generator().manual_seed(12)) + 0.1
     lo, hi = torch.tensor([-0.8, -0.8, -0.8]), torch.tensor([0.8, 0.8, 0.8])
     n_target = 2500
-    p2, s2, c2, kept = rs.resample(points, s, c, tets, keep, grid, (lo, hi), n_target,
-                                   torch.Generator().manual_seed(13), return_kept=True)
+    p2, s2, c2, kept = rs.resample(
+        points, s, c, tets, keep, grid, (lo, hi), n_target, torch.Generator().manual_seed(13), return_kept=True
+    )
     n_keep = int(keep.sum())
     assert p2.shape == (n_target, 3) and s2.shape == (n_target,) and c2.shape == (n_target, 4)
     assert p2.dtype == points.dtype and s2.dtype == s.dtype and c2.dtype == c.dtype
@@ -256,8 +264,19 @@ def test_resample_over_budget_prefers_priority(grid_points):
     keep = torch.ones(len(points), dtype=torch.bool)
     priority = torch.zeros(len(points), dtype=torch.bool)
     priority[:100] = True
-    p2, s2, c2, kept = rs.resample(points, s, c, tets, keep, torch.ones(4, 4, 4), (LO, HI), 500,
-                                   torch.Generator().manual_seed(14), priority=priority, return_kept=True)
+    p2, s2, c2, kept = rs.resample(
+        points,
+        s,
+        c,
+        tets,
+        keep,
+        torch.ones(4, 4, 4),
+        (LO, HI),
+        500,
+        torch.Generator().manual_seed(14),
+        priority=priority,
+        return_kept=True,
+    )
     assert p2.shape == (500, 3) and len(kept) == 500
     assert set(range(100)) <= set(kept.tolist())
     assert torch.equal(kept, torch.sort(kept).values)
@@ -272,8 +291,17 @@ def test_resample_cuda_matches_cpu(grid_points):
     keep[::2] = True
     grid = torch.rand(8, 8, 8, generator=torch.Generator().manual_seed(15))
     cpu = rs.resample(points, s, c, tets, keep, grid, (LO, HI), 2000, torch.Generator().manual_seed(16))
-    gpu = rs.resample(points.cuda(), s.cuda(), c.cuda(), tets.cuda(), keep.cuda(), grid.cuda(),
-                      (LO.cuda(), HI.cuda()), 2000, torch.Generator().manual_seed(16))
+    gpu = rs.resample(
+        points.cuda(),
+        s.cuda(),
+        c.cuda(),
+        tets.cuda(),
+        keep.cuda(),
+        grid.cuda(),
+        (LO.cuda(), HI.cuda()),
+        2000,
+        torch.Generator().manual_seed(16),
+    )
     for a, b in zip(cpu, gpu, strict=True):
         assert b.device.type == "cuda"
         torch.testing.assert_close(a, b.cpu())

@@ -98,9 +98,7 @@ def test_torch_and_numpy_agree_and_eval_is_linear():
     assert isinstance(b_t, torch.Tensor) and b_t.dtype == torch.float64
     np.testing.assert_allclose(b_t.numpy(), b_np, atol=1e-15)
     np.testing.assert_allclose(sh_eval(dirs, coeffs), (b_np * coeffs).sum(1), atol=1e-12)
-    np.testing.assert_allclose(
-        sh_eval(torch.tensor(dirs), torch.tensor(coeffs)).numpy(), (b_np * coeffs).sum(1)
-    )
+    np.testing.assert_allclose(sh_eval(torch.tensor(dirs), torch.tensor(coeffs)).numpy(), (b_np * coeffs).sum(1))
     assert np.all(sh_eval(dirs, np.zeros((64, 0))) == 0)
 
 

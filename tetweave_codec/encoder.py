@@ -66,10 +66,20 @@ def _validate(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.n
     return v, f
 
 
-def encode(vertices: np.ndarray, faces: np.ndarray, *, points: int = DEFAULT_POINTS,
-           sh_degree: int = DEFAULT_SH_DEGREE, quality: str = "default", iters: int | None = None,
-           device: str | torch.device = "auto", seed: int = 0, init: str = "sdf",
-           progress: ProgressFn | None = None, measure: bool = True) -> EncodeResult:
+def encode(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    *,
+    points: int = DEFAULT_POINTS,
+    sh_degree: int = DEFAULT_SH_DEGREE,
+    quality: str = "default",
+    iters: int | None = None,
+    device: str | torch.device = "auto",
+    seed: int = 0,
+    init: str = "sdf",
+    progress: ProgressFn | None = None,
+    measure: bool = True,
+) -> EncodeResult:
     """Fit a TetWeave representation to a triangle mesh and return the `.tw` bytes and the decoded mesh.
 
     vertices (V,3), faces (F,3): any triangle mesh (open, multi-component and non-manifold inputs are fine).
@@ -97,9 +107,17 @@ def encode(vertices: np.ndarray, faces: np.ndarray, *, points: int = DEFAULT_POI
     result = fit(normalized, f, config, device=dev, progress=progress)
 
     t0 = time.perf_counter()
-    data = pack(TetWeaveFile(points=result.points, s=result.s, c=result.c, sh_degree=sh_degree,
-                             scale=float(scale), offset=np.asarray(offset, dtype=np.float64),
-                             flags=backend_flags(result.backend)))
+    data = pack(
+        TetWeaveFile(
+            points=result.points,
+            s=result.s,
+            c=result.c,
+            sh_degree=sh_degree,
+            scale=float(scale),
+            offset=np.asarray(offset, dtype=np.float64),
+            flags=backend_flags(result.backend),
+        )
+    )
     out_v, out_f = decode(data)
     seconds = dict(result.stage_seconds)
     seconds["extract"] = time.perf_counter() - t0

@@ -211,9 +211,7 @@ def face_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return np.divide(n, length, out=np.zeros_like(n), where=length > 0)
 
 
-def sample_surface(
-    vertices: np.ndarray, faces: np.ndarray, n: int, seed: int = 0
-) -> tuple[np.ndarray, np.ndarray]:
+def sample_surface(vertices: np.ndarray, faces: np.ndarray, n: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """Area-weighted uniform samples on a triangle mesh.
 
     Returns points (n,3) float64 and the face index (n,) int64 of each. Raises ValueError on a mesh of zero
@@ -245,9 +243,7 @@ def _edge_mask(points: np.ndarray, normals: np.ndarray, radius: float, dot: floa
     return np.any(valid & (cos < dot), axis=1)
 
 
-def prepare_mesh(
-    vertices: np.ndarray, faces: np.ndarray, options: MetricOptions | None = None
-) -> SampledMesh:
+def prepare_mesh(vertices: np.ndarray, faces: np.ndarray, options: MetricOptions | None = None) -> SampledMesh:
     """Sample a mesh (in the frame given) and build its AABB tree; see `SampledMesh`."""
     import igl
 
@@ -261,9 +257,7 @@ def prepare_mesh(
     return SampledMesh(v, f, normals, points, sample_faces, edge, tree)
 
 
-def prepare_reference(
-    vertices: np.ndarray, faces: np.ndarray, options: MetricOptions | None = None
-) -> Reference:
+def prepare_reference(vertices: np.ndarray, faces: np.ndarray, options: MetricOptions | None = None) -> Reference:
     """Normalize an input mesh by its own transform and sample it (done once per input in a benchmark)."""
     scale, offset = normalization(vertices)
     return Reference(prepare_mesh(_to_frame(vertices, scale, offset), faces, options), scale, offset)
@@ -271,9 +265,7 @@ def prepare_reference(
 
 def point_surface_distance(points: np.ndarray, mesh: SampledMesh) -> tuple[np.ndarray, np.ndarray]:
     """Exact distance (n,) from each point to the surface of `mesh`, and the closest face (n,) int64."""
-    sq, face, _ = mesh.tree.squared_distance(
-        mesh.vertices, mesh.faces, np.ascontiguousarray(points, np.float64)
-    )
+    sq, face, _ = mesh.tree.squared_distance(mesh.vertices, mesh.faces, np.ascontiguousarray(points, np.float64))
     return np.sqrt(np.maximum(sq, 0.0)), np.asarray(face, dtype=np.int64)
 
 
@@ -333,9 +325,7 @@ def _edge_faces_tree(mesh: SampledMesh) -> SampledMesh:
     tree = igl.AABB()
     tree.init(mesh.vertices, faces)
     empty = np.zeros(0, dtype=bool)
-    return SampledMesh(
-        mesh.vertices, faces, mesh.normals, np.zeros((0, 3)), np.zeros(0, np.int64), empty, tree
-    )
+    return SampledMesh(mesh.vertices, faces, mesh.normals, np.zeros((0, 3)), np.zeros(0, np.int64), empty, tree)
 
 
 def _edge_metrics(a: SampledMesh, b: SampledMesh, threshold: float) -> tuple[float, float]:
@@ -393,9 +383,7 @@ def triangle_quality(vertices: np.ndarray, faces: np.ndarray) -> dict[str, np.nd
     """
     v, f = _as_mesh(vertices, faces)
     tri = v[f]
-    edges = np.stack(
-        [tri[:, 2] - tri[:, 1], tri[:, 0] - tri[:, 2], tri[:, 1] - tri[:, 0]], axis=1
-    )  # opposite vi
+    edges = np.stack([tri[:, 2] - tri[:, 1], tri[:, 0] - tri[:, 2], tri[:, 1] - tri[:, 0]], axis=1)  # opposite vi
     lengths = np.linalg.norm(edges, axis=2)
     area = 0.5 * np.linalg.norm(np.cross(edges[:, 2], -edges[:, 1]), axis=1)
     degenerate = ~(area > 0)

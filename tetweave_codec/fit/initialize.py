@@ -81,8 +81,9 @@ def _face_areas_normals(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.nda
     return 0.5 * norm, normals
 
 
-def _sample_surface(vertices: np.ndarray, faces: np.ndarray, n: int, rng: np.random.Generator
-                    ) -> tuple[np.ndarray, np.ndarray, float]:
+def _sample_surface(
+    vertices: np.ndarray, faces: np.ndarray, n: int, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray, float]:
     """Area-weighted random points on the surface: positions (n,3), face normals (n,3), total area."""
     areas, normals = _face_areas_normals(vertices, faces)
     total = float(areas.sum())
@@ -104,8 +105,9 @@ def _cell_keys(points: np.ndarray, size: float) -> np.ndarray:
     return (ijk[:, 0] << 42) | (ijk[:, 1] << 21) | ijk[:, 2]
 
 
-def _sample_surface_stratified(vertices: np.ndarray, faces: np.ndarray, n: int, rng: np.random.Generator
-                               ) -> tuple[np.ndarray, np.ndarray, float]:
+def _sample_surface_stratified(
+    vertices: np.ndarray, faces: np.ndarray, n: int, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray, float]:
     """Surface samples with at most one per cell of a cubic grid: fewer clumps and holes than random samples.
 
     Draws OVERSAMPLE * n random samples, then picks the cell size (bisection) at which at least n cells are
@@ -146,9 +148,15 @@ def _separate_duplicates(points: np.ndarray, rng: np.random.Generator, scale: fl
     raise RuntimeError("could not separate duplicate points")  # pragma: no cover - needs ~2^-24 collisions
 
 
-def initial_points(vertices: np.ndarray, faces: np.ndarray, n: int, rng: np.random.Generator,
-                   shell: float = SHELL, uniform_fraction: float = UNIFORM_FRACTION,
-                   shell_gap: float = SHELL_GAP) -> np.ndarray:
+def initial_points(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    n: int,
+    rng: np.random.Generator,
+    shell: float = SHELL,
+    uniform_fraction: float = UNIFORM_FRACTION,
+    shell_gap: float = SHELL_GAP,
+) -> np.ndarray:
     """Points concentrated in a thin shell around the surface, plus a sparse uniform fill of [-BOX, BOX]^3.
 
     Layout (n points in all, distinct in float32):
@@ -203,8 +211,9 @@ def initial_points(vertices: np.ndarray, faces: np.ndarray, n: int, rng: np.rand
     return np.clip(points, -BOX, BOX)
 
 
-def initial_state(vertices: np.ndarray, faces: np.ndarray, n: int, sh_degree: int, seed: int,
-                  **kwargs: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def initial_state(
+    vertices: np.ndarray, faces: np.ndarray, n: int, sh_degree: int, seed: int, **kwargs: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Start of the fit from the known input: ``initial_points`` with s = the input's signed distance, c = 0.
 
     s is the exact signed distance, neither clipped nor scaled: marching tetrahedra places a vertex where s,
@@ -233,13 +242,14 @@ def initial_state(vertices: np.ndarray, faces: np.ndarray, n: int, sh_degree: in
     s = signed_distance(points, vertices, faces).astype(np.float32)
     # s = 0 exactly would leave a grid point's side undefined; give it the outside sign with a float16-safe
     # size.
-    s[s == 0] = 2.0 ** -14
+    s[s == 0] = 2.0**-14
     c = np.zeros((n, (sh_degree + 1) ** 2), dtype=np.float32)
     return points, s, c
 
 
-def random_state(n: int, sh_degree: int, seed: int, radius: float = math.sqrt(3.0), sdf: str = "random"
-                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def random_state(
+    n: int, sh_degree: int, seed: int, radius: float = math.sqrt(3.0), sdf: str = "random"
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The paper's initialization (Appendix A and its reference code), for comparison.
 
     Points uniform in the ball of radius sqrt(3) (the cube [-1, 1]^3's circumscribed ball): a uniform
@@ -269,6 +279,6 @@ def random_state(n: int, sh_degree: int, seed: int, radius: float = math.sqrt(3.
     else:
         raise ValueError(f"sdf must be 'random' or 'sphere', got {sdf!r}")
     s = s.astype(np.float32)
-    s[s == 0] = 2.0 ** -14
+    s[s == 0] = 2.0**-14
     c = np.zeros((n, (sh_degree + 1) ** 2), dtype=np.float32)
     return points, s, c

@@ -46,7 +46,7 @@ from tetweave_codec.render import render_maps
 POSITION_BOUND = 1.2
 # Smallest |s| written to the container: float16 keeps its sign (and marching tets never puts a vertex exactly on a
 # grid point, which would give zero-area triangles).
-MIN_ABS_S = 2.0 ** -14
+MIN_ABS_S = 2.0**-14
 # |c| above this saturates tanh for any direction; clamping keeps c finite in float16.
 MAX_ABS_C = 64.0
 # Voxel grid of the error-driven resampling (paper Appendix A: 32^3).
@@ -154,19 +154,31 @@ def _noop_progress(stage: str, done: int, total: int, info: dict) -> None:
 class _Params:
     """The optimized tensors and their optimizers; rebuilt whenever the point set changes."""
 
-    def __init__(self, points: np.ndarray, s: np.ndarray, c: np.ndarray, device: torch.device, lr: LearningRates,
-                 optimize_points: bool = True):
-        self.points = torch.tensor(np.asarray(points), dtype=torch.float32, device=device,
-                                   requires_grad=optimize_points)
+    def __init__(
+        self,
+        points: np.ndarray,
+        s: np.ndarray,
+        c: np.ndarray,
+        device: torch.device,
+        lr: LearningRates,
+        optimize_points: bool = True,
+    ):
+        self.points = torch.tensor(
+            np.asarray(points), dtype=torch.float32, device=device, requires_grad=optimize_points
+        )
         self.s = torch.tensor(np.asarray(s), dtype=torch.float32, device=device, requires_grad=True)
         self.c = torch.tensor(np.asarray(c), dtype=torch.float32, device=device, requires_grad=True)
-        self.opt_sc = torch.optim.AdamW([{"params": [self.s], "lr": lr.s}, {"params": [self.c], "lr": lr.c}],
-                                        weight_decay=0.0)
+        self.opt_sc = torch.optim.AdamW(
+            [{"params": [self.s], "lr": lr.s}, {"params": [self.c], "lr": lr.c}], weight_decay=0.0
+        )
         self.opt_p = torch.optim.AdamW([self.points], lr=lr.points, weight_decay=0.0) if optimize_points else None
 
     def numpy(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        return (self.points.detach().cpu().numpy().astype(np.float64), self.s.detach().cpu().numpy(),
-                self.c.detach().cpu().numpy())
+        return (
+            self.points.detach().cpu().numpy().astype(np.float64),
+            self.s.detach().cpu().numpy(),
+            self.c.detach().cpu().numpy(),
+        )
 
 
 class _Grid(NamedTuple):
@@ -187,9 +199,18 @@ def _extract(params: _Params, grid: _Grid):
     return marching_tets(params.points, grid.tets, params.s, params.c, hull_faces=grid.hull)
 
 
-def _regularized_loss(params: _Params, grid: _Grid, targets: Targets, views: Tensor, schedule: Schedule,
-                      weights: Weights, with_grid_terms: bool, surface: SurfaceTarget | None,
-                      generator: torch.Generator, odt_factor: float = 1.0) -> tuple[Tensor, dict[str, float]]:
+def _regularized_loss(
+    params: _Params,
+    grid: _Grid,
+    targets: Targets,
+    views: Tensor,
+    schedule: Schedule,
+    weights: Weights,
+    with_grid_terms: bool,
+    surface: SurfaceTarget | None,
+    generator: torch.Generator,
+    odt_factor: float = 1.0,
+) -> tuple[Tensor, dict[str, float]]:
     """Total loss of one iteration and its parts (floats, for logging).
 
     odt_factor scales the ODT term; 0 skips it. Positions stay fixed between triangulations, so the ODT value
@@ -238,8 +259,9 @@ def _image_loss(maps, target_maps, weights: Weights) -> tuple[Tensor, dict[str, 
     return total, {"mask": float(mask.detach()), "depth": float(depth.detach()), "normals": float(normals.detach())}
 
 
-def _importance(params: _Params, grid: _Grid, targets: Targets, schedule: Schedule,
-                generator: torch.Generator) -> tuple[Tensor, Tensor, Tensor] | None:
+def _importance(
+    params: _Params, grid: _Grid, targets: Targets, schedule: Schedule, generator: torch.Generator
+) -> tuple[Tensor, Tensor, Tensor] | None:
     """Voxel importance from the normal-map error of the current mesh (paper eq. importance).
 
     Returns (grid (R,R,R), bbox_min (3,), bbox_max (3,)) or None when the current mesh is empty.
@@ -263,8 +285,15 @@ def _importance(params: _Params, grid: _Grid, targets: Targets, schedule: Schedu
         return grid, lo, hi
 
 
-def _resample(params: _Params, grid: _Grid, targets: Targets, n_target: int, schedule: Schedule,
-              generator: torch.Generator, lr: LearningRates) -> _Params:
+def _resample(
+    params: _Params,
+    grid: _Grid,
+    targets: Targets,
+    n_target: int,
+    schedule: Schedule,
+    generator: torch.Generator,
+    lr: LearningRates,
+) -> _Params:
     """Relocate passive points and grow the set to `n_target` by error-driven sampling (paper §4.3-4.4)."""
     with torch.no_grad():
         imp = _importance(params, grid, targets, schedule, generator)
@@ -273,8 +302,9 @@ def _resample(params: _Params, grid: _Grid, targets: Targets, n_target: int, sch
         importance, lo, hi = imp
         keep = one_ring_mask(grid.tets, active_mask(grid.tets, params.s))
         n_target = max(n_target, int(keep.sum()))
-        points, s, c = resample(params.points, params.s, params.c, grid.tets, keep, importance, (lo, hi), n_target,
-                                generator)
+        points, s, c = resample(
+            params.points, params.s, params.c, grid.tets, keep, importance, (lo, hi), n_target, generator
+        )
         points = points.clamp(-POSITION_BOUND, POSITION_BOUND)
     return _Params(points.cpu().numpy(), s.cpu().numpy(), c.cpu().numpy(), params.points.device, lr)
 
@@ -294,9 +324,16 @@ def _backward(loss: Tensor, params: _Params) -> None:
             torch.nan_to_num_(t.grad, nan=0.0, posinf=0.0, neginf=0.0)
 
 
-def _main_stage(params: _Params, targets: Targets, surface: SurfaceTarget | None, config: FitConfig, backend: str,
-                generator: torch.Generator,
-                progress: ProgressFn, history: list) -> _Params:
+def _main_stage(
+    params: _Params,
+    targets: Targets,
+    surface: SurfaceTarget | None,
+    config: FitConfig,
+    backend: str,
+    generator: torch.Generator,
+    progress: ProgressFn,
+    history: list,
+) -> _Params:
     sch = config.schedule
     n_events = len(sch.resample_at)
     # Resampling happens right before a re-triangulation, so round each event to a multiple of m.
@@ -313,11 +350,20 @@ def _main_stage(params: _Params, targets: Targets, surface: SurfaceTarget | None
             if it in events:
                 params = _resample(params, grid, targets, events[it], sch, generator, config.lr)
                 grid = _triangulate(params.points, backend)
-        views = torch.randperm(len(targets), generator=generator)[:sch.views_per_iter].to(params.points.device)
+        views = torch.randperm(len(targets), generator=generator)[: sch.views_per_iter].to(params.points.device)
         period_end = (it + 1) % sch.delaunay_every == 0 or it + 1 == sch.main_iters
-        loss, parts = _regularized_loss(params, grid, targets, views, sch, config.weights, with_grid_terms=True,
-                                        surface=surface, generator=generator,
-                                        odt_factor=float(sch.delaunay_every) if period_end else 0.0)
+        loss, parts = _regularized_loss(
+            params,
+            grid,
+            targets,
+            views,
+            sch,
+            config.weights,
+            with_grid_terms=True,
+            surface=surface,
+            generator=generator,
+            odt_factor=float(sch.delaunay_every) if period_end else 0.0,
+        )
         _backward(loss, params)
         params.opt_sc.step()
         params.opt_sc.zero_grad(set_to_none=True)
@@ -347,18 +393,36 @@ def _finalize_points(params: _Params, backend: str) -> tuple[np.ndarray, np.ndar
     return points16[order], s[keep][order], c[keep][order]
 
 
-def _late_stage(points16: np.ndarray, s: np.ndarray, c: np.ndarray, targets: Targets,
-                surface: SurfaceTarget | None, config: FitConfig,
-                backend: str, device: torch.device, generator: torch.Generator, progress: ProgressFn,
-                history: list) -> tuple[np.ndarray, np.ndarray]:
+def _late_stage(
+    points16: np.ndarray,
+    s: np.ndarray,
+    c: np.ndarray,
+    targets: Targets,
+    surface: SurfaceTarget | None,
+    config: FitConfig,
+    backend: str,
+    device: torch.device,
+    generator: torch.Generator,
+    progress: ProgressFn,
+    history: list,
+) -> tuple[np.ndarray, np.ndarray]:
     """Optimize s and c on the final (float16) points and their one triangulation; returns float32 s, c."""
     sch = config.schedule
     params = _Params(points16.astype(np.float32), s, c, device, config.lr, optimize_points=False)
     grid = _triangulate(params.points, backend)
     for it in range(sch.late_iters):
-        views = torch.randperm(len(targets), generator=generator)[:sch.views_per_iter].to(device)
-        loss, parts = _regularized_loss(params, grid, targets, views, sch, config.weights, with_grid_terms=False,
-                                        surface=surface, generator=generator)
+        views = torch.randperm(len(targets), generator=generator)[: sch.views_per_iter].to(device)
+        loss, parts = _regularized_loss(
+            params,
+            grid,
+            targets,
+            views,
+            sch,
+            config.weights,
+            with_grid_terms=False,
+            surface=surface,
+            generator=generator,
+        )
         _backward(loss, params)
         params.opt_sc.step()
         params.opt_sc.zero_grad(set_to_none=True)
@@ -376,8 +440,13 @@ def _round_sc(s: np.ndarray, c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return s16, c16
 
 
-def fit(vertices: np.ndarray, faces: np.ndarray, config: FitConfig, device: torch.device | str = "cpu",
-        progress: ProgressFn | None = None) -> FitResult:
+def fit(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    config: FitConfig,
+    device: torch.device | str = "cpu",
+    progress: ProgressFn | None = None,
+) -> FitResult:
     """Fit a TetWeave representation to a mesh in the normalized frame.
 
     vertices (V,3) float64 in [-0.9, 0.9]^3, faces (F,3) int64. Returns the float16 arrays to store.
@@ -395,8 +464,9 @@ def fit(vertices: np.ndarray, faces: np.ndarray, config: FitConfig, device: torc
         torch.use_deterministic_algorithms(was_deterministic, warn_only=was_warn_only)
 
 
-def _fit(vertices: np.ndarray, faces: np.ndarray, config: FitConfig, device: torch.device,
-         progress: ProgressFn) -> FitResult:
+def _fit(
+    vertices: np.ndarray, faces: np.ndarray, config: FitConfig, device: torch.device, progress: ProgressFn
+) -> FitResult:
     sch = config.schedule
     if config.sh_degree not in (0, 1, 2, 3):
         raise TetweaveError(f"SH degree must be 0..3, got {config.sh_degree}")

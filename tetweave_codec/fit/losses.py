@@ -54,6 +54,7 @@ def _zero_like_graph(*tensors: torch.Tensor) -> torch.Tensor:
 
 # --- ODT ---
 
+
 def _cross(u: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
     """Cross product of (3,T) component-major vectors."""
     return torch.stack([u[1] * w[2] - u[2] * w[1], u[2] * w[0] - u[0] * w[2], u[0] * w[1] - u[1] * w[0]])
@@ -64,8 +65,9 @@ def _dot(u: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
     return u[0] * w[0] + u[1] * w[1] + u[2] * w[2]
 
 
-def _odt_terms(points: torch.Tensor, tets: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor,
-                                                                   torch.Tensor, torch.Tensor]:
+def _odt_terms(
+    points: torch.Tensor, tets: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
     """Quantities shared by the ODT energies, with a = v1-v0, b = v2-v0, c = v3-v0.
 
     The circumcenter is v0 + n / (2 det) with n = |a|^2 (b x c) + |b|^2 (c x a) + |c|^2 (a x b) and
@@ -89,8 +91,7 @@ def _odt_terms(points: torch.Tensor, tets: torch.Tensor) -> tuple[torch.Tensor, 
     # Flat tetrahedra have no finite circumcenter: floor |det| relative to the tet's size (no gradient through
     # the floor) so that slivers get a large but finite circumsphere instead of inf/NaN.
     with torch.no_grad():
-        sq = (_dot(a, a) + _dot(b, b) + _dot(c, c) + _dot(b - a, b - a) + _dot(c - a, c - a)
-              + _dot(c - b, c - b)) / 6.0
+        sq = (_dot(a, a) + _dot(b, b) + _dot(c, c) + _dot(b - a, b - a) + _dot(c - a, c - a) + _dot(c - b, c - b)) / 6.0
         floor = torch.clamp(DEGENERATE_DET * sq.pow(1.5), min=_TINY)
         sign = torch.where(det < 0, -torch.ones_like(det), torch.ones_like(det))
     guarded = torch.where(det.abs() < floor, sign * floor, det)
@@ -147,7 +148,7 @@ def odt_relative_energy(points: torch.Tensor, tets: torch.Tensor) -> torch.Tenso
     det, _, n, g0, sq = _odt_terms(points, tets)
     m = 2.0 * det * g0 - n
     # |n|^2 scales like length^8; floor it relative to the tet's size so that n = 0 gives 0/floor, not 0/0.
-    floor = torch.clamp(DEGENERATE_DET ** 2 * sq.pow(4), min=_TINY)
+    floor = torch.clamp(DEGENERATE_DET**2 * sq.pow(4), min=_TINY)
     return (ODT_FACTOR / SHELL_FACTOR) * _dot(m, m) / torch.maximum(_dot(n, n), floor)
 
 
@@ -246,6 +247,7 @@ def fairness_loss(vertices: torch.Tensor, faces: torch.Tensor) -> torch.Tensor:
 
 # --- Sign change ---
 
+
 def sign_loss(s: torch.Tensor, edges: torch.Tensor) -> torch.Tensor:
     """FlexiCubes' sign-change regularizer (paper §4.2) on grid edges whose base signed distances change sign.
 
@@ -271,8 +273,9 @@ def sign_loss(s: torch.Tensor, edges: torch.Tensor) -> torch.Tensor:
     if not bool(change.any()):
         return _zero_like_graph(s)
     sa, sb = sa[change], sb[change]
-    loss = (F.binary_cross_entropy_with_logits(sa, outside_b[change].to(s.dtype), reduction="none")
-            + F.binary_cross_entropy_with_logits(sb, outside_a[change].to(s.dtype), reduction="none"))
+    loss = F.binary_cross_entropy_with_logits(
+        sa, outside_b[change].to(s.dtype), reduction="none"
+    ) + F.binary_cross_entropy_with_logits(sb, outside_a[change].to(s.dtype), reduction="none")
     return loss.mean()
 
 
@@ -307,8 +310,9 @@ def mask_loss(mask: torch.Tensor, mask_gt: torch.Tensor) -> torch.Tensor:
     return (mask - mask_gt).abs().mean()
 
 
-def depth_loss(depth: torch.Tensor, depth_gt: torch.Tensor, mask_gt: torch.Tensor, norm: str = "squared"
-               ) -> torch.Tensor:
+def depth_loss(
+    depth: torch.Tensor, depth_gt: torch.Tensor, mask_gt: torch.Tensor, norm: str = "squared"
+) -> torch.Tensor:
     """Depth loss ||M_gt (D - D_gt)||^2 of the paper, mean over all B*H*W pixels (background counts as 0).
 
     Args:
@@ -320,8 +324,9 @@ def depth_loss(depth: torch.Tensor, depth_gt: torch.Tensor, mask_gt: torch.Tenso
     return _pixel_norm(mask_gt * (depth - depth_gt), norm, channels=False).mean()
 
 
-def normal_loss(normals: torch.Tensor, normals_gt: torch.Tensor, mask_gt: torch.Tensor, norm: str = "squared"
-                ) -> torch.Tensor:
+def normal_loss(
+    normals: torch.Tensor, normals_gt: torch.Tensor, mask_gt: torch.Tensor, norm: str = "squared"
+) -> torch.Tensor:
     """Normal loss ||M_gt (N - N_gt)||^2 of the paper: per-pixel squared norm of the 3-vector, pixel mean.
 
     Args:
@@ -332,8 +337,9 @@ def normal_loss(normals: torch.Tensor, normals_gt: torch.Tensor, mask_gt: torch.
     return _pixel_norm(mask_gt.unsqueeze(-1) * (normals - normals_gt), norm, channels=True).mean()
 
 
-def reconstruction_loss(maps: Any, targets: Any, weights: Mapping[str, float] | None = None,
-                        norm: str = "squared") -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+def reconstruction_loss(
+    maps: Any, targets: Any, weights: Mapping[str, float] | None = None, norm: str = "squared"
+) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
     """Paper's L_recons = l_M |M - M_gt| + l_D ||M_gt (D - D_gt)||^2 + l_N ||M_gt (N - N_gt)||^2.
 
     Args:

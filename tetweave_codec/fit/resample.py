@@ -42,8 +42,9 @@ def _as_tensor(x, device=None, dtype=None) -> torch.Tensor:
     return torch.as_tensor(np.asarray(x), device=device, dtype=dtype)
 
 
-def _voxel_index(points: torch.Tensor, bbox_min: torch.Tensor, bbox_max: torch.Tensor, resolution: int
-                 ) -> tuple[torch.Tensor, torch.Tensor]:
+def _voxel_index(
+    points: torch.Tensor, bbox_min: torch.Tensor, bbox_max: torch.Tensor, resolution: int
+) -> tuple[torch.Tensor, torch.Tensor]:
     """Flat voxel index (P,) long of each point, and a (P,) bool mask of the points inside the box."""
     extent = (bbox_max - bbox_min).clamp_min(1e-12)
     inside = ((points >= bbox_min) & (points <= bbox_max)).all(-1)
@@ -72,8 +73,9 @@ def _segment_sums(keys: torch.Tensor, values: torch.Tensor, size: int) -> tuple[
     return sums, counts
 
 
-def voxel_importance(surface_points: torch.Tensor, errors: torch.Tensor, bbox_min: BoxCorner,
-                     bbox_max: BoxCorner, resolution: int = 32) -> torch.Tensor:
+def voxel_importance(
+    surface_points: torch.Tensor, errors: torch.Tensor, bbox_min: BoxCorner, bbox_max: BoxCorner, resolution: int = 32
+) -> torch.Tensor:
     """Importance h of paper eq. (importance): mean error of the pixels whose surface points fall in a voxel.
 
     Args:
@@ -89,7 +91,7 @@ def voxel_importance(surface_points: torch.Tensor, errors: torch.Tensor, bbox_mi
     lo = _as_tensor(bbox_min, device, surface_points.dtype)
     hi = _as_tensor(bbox_max, device, surface_points.dtype)
     flat, inside = _voxel_index(surface_points.reshape(-1, 3), lo, hi, resolution)
-    sums, counts = _segment_sums(flat[inside], errors.reshape(-1)[inside], resolution ** 3)
+    sums, counts = _segment_sums(flat[inside], errors.reshape(-1)[inside], resolution**3)
     mean = torch.where(counts > 0, sums / counts.clamp_min(1), torch.zeros_like(sums))
     return mean.to(torch.float32).reshape(resolution, resolution, resolution)
 
@@ -102,8 +104,9 @@ def _triangle_lattice(m: int) -> np.ndarray:
     return np.stack([m - i - j, i, j], axis=1) / m
 
 
-def uniform_importance(vertices: Array, faces: Array, bbox: tuple[BoxCorner, BoxCorner], resolution: int = 32
-                       ) -> torch.Tensor:
+def uniform_importance(
+    vertices: Array, faces: Array, bbox: tuple[BoxCorner, BoxCorner], resolution: int = 32
+) -> torch.Tensor:
     """Importance of uniform sampling (paper §4.3): 1 in the voxels the mesh touches, 0 elsewhere.
 
     Each triangle is sampled with a barycentric lattice whose step is at most LATTICE_STEP voxel sides, so
@@ -121,7 +124,7 @@ def uniform_importance(vertices: Array, faces: Array, bbox: tuple[BoxCorner, Box
     f = _to_numpy(faces).astype(np.int64).reshape(-1, 3)
     lo = _as_tensor(bbox[0], dtype=torch.float64).cpu().numpy()
     hi = _as_tensor(bbox[1], dtype=torch.float64).cpu().numpy()
-    grid = np.zeros(resolution ** 3, dtype=np.float32)
+    grid = np.zeros(resolution**3, dtype=np.float32)
     if len(f):
         tri = v[f]
         longest = np.sqrt(((tri - np.roll(tri, 1, axis=1)) ** 2).sum(-1).max(1))
@@ -133,16 +136,23 @@ def uniform_importance(vertices: Array, faces: Array, bbox: tuple[BoxCorner, Box
             # chunks keep the (n, L, 3) sample array small for meshes with a few huge triangles
             chunk = max(1, 2_000_000 // len(lattice))
             for start in range(0, len(sel), chunk):
-                pts = np.einsum("lk,nkd->nld", lattice, sel[start:start + chunk]).reshape(-1, 3)
-                flat, inside = _voxel_index(torch.from_numpy(pts), torch.from_numpy(lo), torch.from_numpy(hi),
-                                            resolution)
+                pts = np.einsum("lk,nkd->nld", lattice, sel[start : start + chunk]).reshape(-1, 3)
+                flat, inside = _voxel_index(
+                    torch.from_numpy(pts), torch.from_numpy(lo), torch.from_numpy(hi), resolution
+                )
                 grid[flat[inside].numpy()] = 1.0
     return torch.from_numpy(grid.reshape(resolution, resolution, resolution)).to(device)
 
 
-def sample_from_importance(grid: torch.Tensor, bbox_min: BoxCorner, bbox_max: BoxCorner, k: int,
-                           generator: torch.Generator, *,
-                           dtype: torch.dtype | None = None) -> torch.Tensor:
+def sample_from_importance(
+    grid: torch.Tensor,
+    bbox_min: BoxCorner,
+    bbox_max: BoxCorner,
+    k: int,
+    generator: torch.Generator,
+    *,
+    dtype: torch.dtype | None = None,
+) -> torch.Tensor:
     """Draw k points with density proportional to the importance grid (paper §4.3).
 
     The number of points per voxel is multinomial(k, grid / grid.sum()). Inside a voxel that receives c points
@@ -177,7 +187,7 @@ def sample_from_importance(grid: torch.Tensor, bbox_min: BoxCorner, bbox_max: Bo
     voxel = torch.multinomial(weights / weights.sum(), k, replacement=True, generator=generator)
     uniq, count = torch.unique(voxel, return_counts=True)  # sorted voxels, points per voxel
     m = torch.ceil(count.to(torch.float64).pow(1.0 / 3.0) - 1e-9).long().clamp_min(1)
-    cells = m ** 3
+    cells = m**3
     # enumerate every sub-cell of every chosen voxel, shuffle within each voxel, keep the first `count`
     group = torch.repeat_interleave(torch.arange(len(uniq), device=gdev), cells)
     start = torch.cumsum(cells, 0) - cells
@@ -242,8 +252,9 @@ def _barycentric(corners: np.ndarray, q: np.ndarray) -> np.ndarray:
     return np.stack([1.0 - l1 - l2 - l3, l1, l2, l3], axis=1)
 
 
-def locate_in_tets(points: Array, tets: Array, queries: Array, neighbors: np.ndarray | None = None
-                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def locate_in_tets(
+    points: Array, tets: Array, queries: Array, neighbors: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Find the tetrahedron that contains each query (visibility walk) and its barycentric coordinates.
 
     Each walk starts in a tet around the query's nearest grid point (cKDTree) and repeatedly crosses the face
@@ -312,8 +323,9 @@ def _to_numpy64(x: Array) -> np.ndarray:
     return _to_numpy(x).astype(np.float64)
 
 
-def interpolate_in_tets(points: Array, tets: Array, values: Array, queries: Array,
-                        neighbors: np.ndarray | None = None) -> Array:
+def interpolate_in_tets(
+    points: Array, tets: Array, values: Array, queries: Array, neighbors: np.ndarray | None = None
+) -> Array:
     """Barycentric interpolation of per-point values at query positions (paper §4.3).
 
     Each query takes sum_i bary_i * values[tet_i] in the tet that contains it (``locate_in_tets``); queries
@@ -354,10 +366,20 @@ def interpolate_in_tets(points: Array, tets: Array, values: Array, queries: Arra
     return out.reshape(-1) if squeeze else out
 
 
-def resample(points: torch.Tensor, s: torch.Tensor, c: torch.Tensor, tets: Array, keep: torch.Tensor,
-             grid: torch.Tensor, bbox: tuple[BoxCorner, BoxCorner], n_target: int,
-             generator: torch.Generator, *,
-             priority: torch.Tensor | None = None, return_kept: bool = False) -> tuple[torch.Tensor, ...]:
+def resample(
+    points: torch.Tensor,
+    s: torch.Tensor,
+    c: torch.Tensor,
+    tets: Array,
+    keep: torch.Tensor,
+    grid: torch.Tensor,
+    bbox: tuple[BoxCorner, BoxCorner],
+    n_target: int,
+    generator: torch.Generator,
+    *,
+    priority: torch.Tensor | None = None,
+    return_kept: bool = False,
+) -> tuple[torch.Tensor, ...]:
     """Keep the points that matter, drop the rest and draw new ones from an importance grid (paper §4.3).
 
     Args:

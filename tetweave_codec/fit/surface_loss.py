@@ -48,8 +48,7 @@ class SurfaceTarget:
         _, _, cp = self.tree.squared_distance(self.vertices, self.faces, np.ascontiguousarray(points, np.float64))
         return cp
 
-    def loss(self, vertices: Tensor, faces: Tensor, generator: torch.Generator, per_call: int = 8_000
-             ) -> Tensor:
+    def loss(self, vertices: Tensor, faces: Tensor, generator: torch.Generator, per_call: int = 8_000) -> Tensor:
         """Symmetric point-to-surface Chamfer distance between the mesh (vertices (V,3), faces (F,3)) and the input.
 
         Differentiable w.r.t. `vertices`. Returns a 0-dim tensor on their device.
@@ -68,8 +67,9 @@ class SurfaceTarget:
         _, face, closest = tree.squared_distance(v_np, f_np, q)
         face = np.asarray(face, dtype=np.int64).reshape(-1)
         tri = v_np[f_np[face]]
-        bary = igl.barycentric_coordinates(closest, np.ascontiguousarray(tri[:, 0]), np.ascontiguousarray(tri[:, 1]),
-                                           np.ascontiguousarray(tri[:, 2]))
+        bary = igl.barycentric_coordinates(
+            closest, np.ascontiguousarray(tri[:, 0]), np.ascontiguousarray(tri[:, 1]), np.ascontiguousarray(tri[:, 2])
+        )
         bary = np.nan_to_num(bary, nan=1.0 / 3.0)
         corners = vertices[torch.from_numpy(f_np[face]).to(vertices.device)]  # (n,3,3)
         on_mesh = (torch.from_numpy(bary).to(vertices)[..., None] * corners).sum(1)

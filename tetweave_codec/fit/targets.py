@@ -43,8 +43,15 @@ class Targets:
         return self.cameras[index], RenderMaps(self.mask[index], self.depth[index], self.normals[index])
 
 
-def render_targets(vertices: np.ndarray, faces: np.ndarray, n_views: int, size: int,
-                   device: torch.device | str = "cpu", radius: float = 3.0, fov_deg: float = 45.0) -> Targets:
+def render_targets(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    n_views: int,
+    size: int,
+    device: torch.device | str = "cpu",
+    radius: float = 3.0,
+    fov_deg: float = 45.0,
+) -> Targets:
     """Render the input mesh (normalized frame) from `n_views` Fibonacci-sphere cameras at `size`² pixels.
 
     vertices (V,3), faces (F,3): the normalized input. Returns float32 maps on `device`.
@@ -56,7 +63,7 @@ def render_targets(vertices: np.ndarray, faces: np.ndarray, n_views: int, size: 
     masks, depths, normals = [], [], []
     with torch.no_grad():
         for start in range(0, n_views, _TARGET_VIEWS_PER_CALL):
-            cams = cameras[start:start + _TARGET_VIEWS_PER_CALL]
+            cams = cameras[start : start + _TARGET_VIEWS_PER_CALL]
             maps = render_maps(verts, tris, cams, size, antialias=False)
             rays = cams.pixel_rays(size).to(maps.normals.dtype)
             facing_away = (maps.normals * rays).sum(-1, keepdim=True) > 0

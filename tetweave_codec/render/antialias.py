@@ -73,8 +73,7 @@ def mesh_edges(faces: Tensor, n_vertices: int | None = None) -> MeshEdges:
     skey = key.index_select(0, order)
     # A run of two equal keys is an interior edge; runs of one (boundary) or 3+ (non-manifold) are listed per
     # entry, as boundary edges. Closed manifold meshes have only runs of two: checked first, cheaply.
-    paired = n_faces % 2 == 0 and bool((skey[0::2] == skey[1::2]).all()) and \
-        bool((skey[1:-1:2] != skey[2::2]).all())
+    paired = n_faces % 2 == 0 and bool((skey[0::2] == skey[1::2]).all()) and bool((skey[1:-1:2] != skey[2::2]).all())
     if paired:
         first, second = order[0::2].contiguous(), order[1::2].contiguous()
     else:
@@ -111,9 +110,17 @@ def _argsort(key: Tensor, key_bound: int) -> Tensor:
     return torch.sort(key, stable=True).indices
 
 
-def antialias(colors: Sequence[Tensor], face_id: Tensor, depth: Tensor, vertices: Tensor, faces: Tensor,
-              cameras: Cameras, screen: Tensor, edges: MeshEdges | None = None,
-              normals: Tensor | None = None) -> list[Tensor]:
+def antialias(
+    colors: Sequence[Tensor],
+    face_id: Tensor,
+    depth: Tensor,
+    vertices: Tensor,
+    faces: Tensor,
+    cameras: Cameras,
+    screen: Tensor,
+    edges: MeshEdges | None = None,
+    normals: Tensor | None = None,
+) -> list[Tensor]:
     """Blend pixels across visible silhouette edges by their analytic coverage (differentiable).
 
     colors: images to antialias (mask, depth, normals, ...), each (B,H,W) or (B,H,W,C), with gradients.
@@ -177,8 +184,9 @@ def add_rows(base: Tensor, index: Tensor, rows: Tensor, ordered: bool | None = N
     return base.index_add(0, index.index_select(0, starts), total)
 
 
-def _silhouette_edges(vertices: Tensor, faces: Tensor, normals: Tensor, cameras: Cameras,
-                      edges: MeshEdges) -> tuple[Tensor, Tensor]:
+def _silhouette_edges(
+    vertices: Tensor, faces: Tensor, normals: Tensor, cameras: Cameras, edges: MeshEdges
+) -> tuple[Tensor, Tensor]:
     """(view, edge) index pairs (S,) of the silhouette edges of every view (no gradient).
 
     The facing of every face in up to VIEW_BITS views is packed into the bits of one int64, so that an edge
@@ -190,7 +198,7 @@ def _silhouette_edges(vertices: Tensor, faces: Tensor, normals: Tensor, cameras:
         f1, f2 = edges.faces[:, 0], edges.faces[:, 1]
         f2_or_1 = torch.where(f2 < 0, f1, f2)
         for start in range(0, len(cameras), VIEW_BITS):
-            eyes = cameras.eye[start:start + VIEW_BITS].to(vertices.dtype)
+            eyes = cameras.eye[start : start + VIEW_BITS].to(vertices.dtype)
             n_views = eyes.shape[0]
             bit = torch.exp2(torch.arange(n_views, device=faces.device, dtype=torch.float64))
             front = (normals @ eyes.t() > offset).to(torch.float64)  # (F,B)
@@ -213,8 +221,9 @@ def _silhouette_edges(vertices: Tensor, faces: Tensor, normals: Tensor, cameras:
     return torch.cat(views), torch.cat(edge_list)
 
 
-def _crossings(screen: Tensor, view: Tensor, edge: Tensor, edges: MeshEdges, face_id: Tensor, depth: Tensor,
-               h: int, w: int):
+def _crossings(
+    screen: Tensor, view: Tensor, edge: Tensor, edges: MeshEdges, face_id: Tensor, depth: Tensor, h: int, w: int
+):
     """Visible crossings of silhouette edges with pixel pairs: inner pixel (K,), outer pixel (K,), t (K,).
 
     t is differentiable w.r.t. `screen`; at most one crossing per pixel pair is returned (the outermost).
@@ -241,8 +250,11 @@ def _crossings(screen: Tensor, view: Tensor, edge: Tensor, edges: MeshEdges, fac
         if total == 0:
             return None
         which = torch.repeat_interleave(torch.arange(count.numel(), device=device), count, output_size=total)
-        line = k0.long().index_select(0, which) + torch.arange(total, device=device) - \
-            (torch.cumsum(count, 0) - count).index_select(0, which)
+        line = (
+            k0.long().index_select(0, which)
+            + torch.arange(total, device=device)
+            - (torch.cumsum(count, 0) - count).index_select(0, which)
+        )
         st = steep.index_select(0, which)
         ia_w, ib_w = ia.index_select(0, which), ib.index_select(0, which)
     # Differentiable crossing of edge `which` with the centre line v = line + 0.5.

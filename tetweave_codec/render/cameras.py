@@ -69,8 +69,9 @@ class Cameras:
         return self.eye.dtype
 
     def to(self, device=None, dtype: torch.dtype | None = None) -> Cameras:
-        return Cameras(self.eye.to(device=device, dtype=dtype), self.rotation.to(device=device, dtype=dtype),
-                       self.fov_deg)
+        return Cameras(
+            self.eye.to(device=device, dtype=dtype), self.rotation.to(device=device, dtype=dtype), self.fov_deg
+        )
 
     def focal(self, height: int) -> float:
         """Focal length in pixels for an image `height` pixels high."""
@@ -138,8 +139,9 @@ def look_at_cameras(eyes: Tensor, target=(0.0, 0.0, 0.0), fov_deg: float = 45.0)
     return Cameras(eyes, torch.stack([right, down, forward], dim=1), float(fov_deg))
 
 
-def fibonacci_cameras(n: int, radius: float = 3.0, fov_deg: float = 45.0, device=None,
-                      dtype: torch.dtype = torch.float32) -> Cameras:
+def fibonacci_cameras(
+    n: int, radius: float = 3.0, fov_deg: float = 45.0, device=None, dtype: torch.dtype = torch.float32
+) -> Cameras:
     """n cameras spread evenly on a sphere of `radius` around the origin (Fibonacci lattice), looking at it.
 
     Deterministic: the same n always gives the same views (computed in float64, then cast).
@@ -154,8 +156,14 @@ def fibonacci_cameras(n: int, radius: float = 3.0, fov_deg: float = 45.0, device
     return look_at_cameras(eyes, fov_deg=fov_deg).to(device=device, dtype=dtype)
 
 
-def random_cameras(n: int, generator: torch.Generator, radius: float = 3.0, fov_deg: float = 45.0,
-                   device=None, dtype: torch.dtype = torch.float32) -> Cameras:
+def random_cameras(
+    n: int,
+    generator: torch.Generator,
+    radius: float = 3.0,
+    fov_deg: float = 45.0,
+    device=None,
+    dtype: torch.dtype = torch.float32,
+) -> Cameras:
     """n cameras at uniformly random directions on a sphere of `radius`, looking at the origin.
 
     Directions are drawn on the CPU from `generator` (a CPU torch.Generator), so that a seed gives the same

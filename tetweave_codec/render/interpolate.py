@@ -12,8 +12,7 @@ import torch
 from torch import Tensor
 
 
-def perspective_barycentrics(x: Tensor, y: Tensor, z: Tensor, px: Tensor,
-                             py: Tensor) -> tuple[Tensor, Tensor]:
+def perspective_barycentrics(x: Tensor, y: Tensor, z: Tensor, px: Tensor, py: Tensor) -> tuple[Tensor, Tensor]:
     """Perspective-correct barycentrics and depth of pixel centres inside triangles (differentiable).
 
     x, y, z (N,3): per pixel, the screen x, screen y and camera depth of its triangle's three vertices;

@@ -32,9 +32,18 @@ class RenderMaps:
     fragments: Fragments | None = None
 
 
-def render_maps(vertices: Tensor, faces: Tensor, cameras: Cameras, size: int | tuple[int, int],
-                antialias: bool = True, normals: str = "flat", fragments: Fragments | None = None, *,
-                cull_backfaces: bool | None = None, edges: MeshEdges | None = None) -> RenderMaps:
+def render_maps(
+    vertices: Tensor,
+    faces: Tensor,
+    cameras: Cameras,
+    size: int | tuple[int, int],
+    antialias: bool = True,
+    normals: str = "flat",
+    fragments: Fragments | None = None,
+    *,
+    cull_backfaces: bool | None = None,
+    edges: MeshEdges | None = None,
+) -> RenderMaps:
     """Render mask, depth and normal maps of a mesh from every camera, differentiable w.r.t. `vertices`.
 
     vertices (V,3) world positions (float32 or float64; the maps use the same dtype), faces (F,3) long.
@@ -89,8 +98,16 @@ def render_maps(vertices: Tensor, faces: Tensor, cameras: Cameras, size: int | t
         fragments = Fragments(face_id.view(shape), bary_img, depth_img.detach())
     if antialias:
         mask_img, depth_img, normal_img = antialias_silhouettes(
-            [mask_img, depth_img, normal_img], fragments.face_id, fragments.depth, vertices, faces, cameras,
-            planes, edges, cross)
+            [mask_img, depth_img, normal_img],
+            fragments.face_id,
+            fragments.depth,
+            vertices,
+            faces,
+            cameras,
+            planes,
+            edges,
+            cross,
+        )
     return RenderMaps(mask_img, depth_img, normal_img, fragments)
 
 

@@ -66,16 +66,24 @@ class Fragments:
 def check_mesh(vertices: Tensor, faces: Tensor) -> None:
     """Raise ValueError unless vertices is (V,3) floating point and faces is (F,3) integer indices into it."""
     if vertices.ndim != 2 or vertices.shape[1] != 3 or not vertices.is_floating_point():
-        raise ValueError(f"vertices must be a floating-point (V,3) tensor, got {tuple(vertices.shape)} "
-                         f"{vertices.dtype}")
+        raise ValueError(
+            f"vertices must be a floating-point (V,3) tensor, got {tuple(vertices.shape)} {vertices.dtype}"
+        )
     if faces.ndim != 2 or faces.shape[1] != 3 or faces.is_floating_point() or faces.dtype == torch.bool:
         raise ValueError(f"faces must be an integer (F,3) tensor, got {tuple(faces.shape)} {faces.dtype}")
     if faces.numel() and (int(faces.min()) < 0 or int(faces.max()) >= vertices.shape[0]):
         raise ValueError("faces index vertices out of range")
 
 
-def rasterize(vertices: Tensor, faces: Tensor, cameras: Cameras, size: int | tuple[int, int], *,
-              cull_backfaces: bool = False, near: float = NEAR) -> Fragments:
+def rasterize(
+    vertices: Tensor,
+    faces: Tensor,
+    cameras: Cameras,
+    size: int | tuple[int, int],
+    *,
+    cull_backfaces: bool = False,
+    near: float = NEAR,
+) -> Fragments:
     """Rasterize a mesh into len(cameras) views.
 
     vertices (V,3) world positions, faces (F,3) long vertex indices, size: int (square) or (H, W).
@@ -95,8 +103,9 @@ def rasterize(vertices: Tensor, faces: Tensor, cameras: Cameras, size: int | tup
     return Fragments(face_id, bary.view(n_views, h, w, 3), depth.view(n_views, h, w))
 
 
-def zbuffer(planes: Tensor, faces: Tensor, h: int, w: int, *, cull_backfaces: bool = False,
-            near: float = NEAR) -> Tensor:
+def zbuffer(
+    planes: Tensor, faces: Tensor, h: int, w: int, *, cull_backfaces: bool = False, near: float = NEAR
+) -> Tensor:
     """The visibility pass of `rasterize`: face ids (B,H,W) long, -1 background (no gradient).
 
     planes (3,B,V): `Cameras.project_planes` of the vertices; faces (F,3) long.
@@ -109,20 +118,21 @@ def zbuffer(planes: Tensor, faces: Tensor, h: int, w: int, *, cull_backfaces: bo
         planes = planes.detach().to(torch.float32) - shift
         keys = torch.full((n_views * h * w,), BACKGROUND_KEY, dtype=torch.int64, device=planes.device)
         for start in range(0, faces.shape[0], FACE_CHUNK):
-            chunk = faces[start:start + FACE_CHUNK]
+            chunk = faces[start : start + FACE_CHUNK]
             flat = chunk.t().reshape(-1)  # (3Fc,): all first vertices, then all second, then all third
             for view in range(n_views):
                 setup = _setup_view(planes[:, view], flat, start, view, h, w, near, cull_backfaces)
                 for level, coef, ints in setup:
                     step = max(1, CANDIDATE_CHUNK >> (2 * level))
                     for i in range(0, coef.shape[1], step):
-                        _cover_group(coef[:, i:i + step], [t[i:i + step] for t in ints], level, w, keys)
+                        _cover_group(coef[:, i : i + step], [t[i : i + step] for t in ints], level, w, keys)
         face_id = torch.where(keys == BACKGROUND_KEY, torch.full_like(keys, -1), keys & FACE_MASK)
     return face_id.view(n_views, h, w)
 
 
-def _setup_view(plane: Tensor, flat_faces: Tensor, face_offset: int, view: int, h: int, w: int, near: float,
-                cull_backfaces: bool) -> list[tuple[int, Tensor, list[Tensor]]]:
+def _setup_view(
+    plane: Tensor, flat_faces: Tensor, face_offset: int, view: int, h: int, w: int, near: float, cull_backfaces: bool
+) -> list[tuple[int, Tensor, list[Tensor]]]:
     """Triangle setup of one view: cull, bound, group by box size and derive incremental equations.
 
     plane (3,V) float32 screen x - 0.5, y - 0.5 (pixel centres at integers) and depth of the vertices in this
@@ -137,9 +147,17 @@ def _setup_view(plane: Tensor, flat_faces: Tensor, face_offset: int, view: int, 
     # Whole-view checks first: usually every vertex is in front of the camera and inside the image, and then
     # the per-triangle near-plane test and clamping can be skipped.
     all_in_front = bool(plane[2].min() > near) if plane.shape[1] else True
-    inside_image = all_in_front and bool((plane[0].min() >= -0.5) & (plane[0].max() <= w - 0.5)
-                                         & (plane[1].min() >= -0.5) & (plane[1].max() <= h - 0.5)) \
-        if plane.shape[1] else True
+    inside_image = (
+        all_in_front
+        and bool(
+            (plane[0].min() >= -0.5)
+            & (plane[0].max() <= w - 0.5)
+            & (plane[1].min() >= -0.5)
+            & (plane[1].max() <= h - 0.5)
+        )
+        if plane.shape[1]
+        else True
+    )
     x, y = (plane[c].index_select(0, flat_faces).view(3, n) for c in range(2))  # (3,Fc) each
     col0 = torch.minimum(torch.minimum(x[0], x[1]), x[2]).ceil_()
     ncol = torch.maximum(torch.maximum(x[0], x[1]), x[2]).floor_()
@@ -200,7 +218,7 @@ def _setup_view(plane: Tensor, flat_faces: Tensor, face_offset: int, view: int, 
     out, at = [], 0
     for lv, members in groups:
         k = members.numel()
-        out.append((lv, coef[:, at:at + k], [t[at:at + k] for t in ints]))
+        out.append((lv, coef[:, at : at + k], [t[at : at + k] for t in ints]))
         at += k
     return out
 
@@ -245,8 +263,7 @@ def _cover_group(coef: Tensor, ints: list[Tensor], level: int, w: int, keys: Ten
     keys.scatter_reduce_(0, pixel, key, reduce="amin")
 
 
-def _fragment_attributes(planes: Tensor, faces: Tensor, face_id: Tensor, h: int,
-                         w: int) -> tuple[Tensor, Tensor]:
+def _fragment_attributes(planes: Tensor, faces: Tensor, face_id: Tensor, h: int, w: int) -> tuple[Tensor, Tensor]:
     """Perspective-correct barycentrics (B*H*W,3) and depth (B*H*W,) at covered pixel centres, 0 elsewhere."""
     from .interpolate import perspective_barycentrics
 

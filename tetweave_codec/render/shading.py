@@ -21,8 +21,12 @@ AMBIENT = 0.18
 BACKGROUND = (255, 255, 255)
 
 
-def shade(maps: RenderMaps, cameras: Cameras | None = None, mode: str = "lambert",
-          background: tuple[int, int, int] = BACKGROUND) -> Tensor:
+def shade(
+    maps: RenderMaps,
+    cameras: Cameras | None = None,
+    mode: str = "lambert",
+    background: tuple[int, int, int] = BACKGROUND,
+) -> Tensor:
     """Colour rendered maps for viewing: uint8 images (B,H,W,3), antialiased against `background`.
 
     mode "lambert": diffuse grey lit by a headlight (relative to each camera when `cameras` is given,
@@ -52,8 +56,9 @@ def shade(maps: RenderMaps, cameras: Cameras | None = None, mode: str = "lambert
         return (image * 255.0).round().clamp(0, 255).to(torch.uint8).cpu()
 
 
-def image_grid(images: Tensor | np.ndarray, cols: int | None = None, pad: int = 4,
-               background: tuple[int, int, int] = BACKGROUND) -> np.ndarray:
+def image_grid(
+    images: Tensor | np.ndarray, cols: int | None = None, pad: int = 4, background: tuple[int, int, int] = BACKGROUND
+) -> np.ndarray:
     """Tile images (B,H,W,3) uint8 into one (rows*H + pad*(rows+1), cols*W + pad*(cols+1), 3) uint8 image.
 
     cols defaults to ceil(sqrt(B)); empty cells are filled with `background`.
@@ -69,7 +74,7 @@ def image_grid(images: Tensor | np.ndarray, cols: int | None = None, pad: int = 
     for i in range(b):
         r, c = divmod(i, cols)
         y, x = pad + r * (h + pad), pad + c * (w + pad)
-        grid[y:y + h, x:x + w] = images[i]
+        grid[y : y + h, x : x + w] = images[i]
     return grid
 
 
