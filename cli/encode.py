@@ -91,7 +91,7 @@ def encode(
 ) -> None:
     """Compress MESH (OBJ, PLY, STL, OFF, GLB) into a .tw file by fitting a TetWeave point cloud to it."""
     from tetweave_codec.encoder import encode as encode_mesh
-    from tetweave_codec.fit.loop import schedule_for
+    from tetweave_codec.fit.config import schedule_for
     from tetweave_codec.meshio import load_mesh, write_bytes_atomic
 
     output = output or mesh.with_suffix(".tw")

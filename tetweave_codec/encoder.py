@@ -17,7 +17,9 @@ import numpy as np
 import torch
 
 from tetweave_codec.errors import InputError
-from tetweave_codec.fit.loop import FitConfig, ProgressFn, fit, schedule_for
+from tetweave_codec.fit.config import FitConfig, Quantization, schedule_for
+from tetweave_codec.fit.loop import FitResult, fit
+from tetweave_codec.fit.step import ProgressFn
 
 DEFAULT_POINTS = 16384
 DEFAULT_SH_DEGREE = 1
@@ -79,52 +81,54 @@ def encode(
     init: str = "sdf",
     progress: ProgressFn | None = None,
     measure: bool = True,
+    container_version: int = 2,
+    quantization: Quantization | None = None,
 ) -> EncodeResult:
     """Fit a TetWeave representation to a triangle mesh and return the `.tw` bytes and the decoded mesh.
 
     vertices (V,3), faces (F,3): any triangle mesh (open, multi-component and non-manifold inputs are fine).
     points: target grid points during the fit (passive ones are dropped before writing, so fewer are stored).
-    sh_degree: 0..3, directional distance coefficients per point (q = (degree+1)^2).
+    sh_degree: -1 (none) or 0..3, directional distance coefficients per point (q = (degree+1)^2).
     quality: "fast", "default" or "best" (see fit.QUALITY); iters overrides its main+late iteration count.
     measure: compute the Chamfer distance between the input and the decoded mesh for `stats`.
+    container_version: 2 (quantized, entropy-coded; default) or 1 (raw float16).
+    quantization: v2's position bits and steps; None = `default_quantization(points, sh_degree)`.
     Deterministic: the same input, options, seed, device and thread count give the same bytes.
     """
     from tetweave_codec.decoder import decode
-    from tetweave_codec.formats.tw import TetWeaveFile, backend_flags, pack
     from tetweave_codec.meshio import normalize
 
     v, f = _validate(vertices, faces)
     if not 64 <= points <= MAX_POINTS:
         raise InputError(f"points must be between 64 and {MAX_POINTS}, got {points}")
-    if sh_degree not in (0, 1, 2, 3):
-        raise InputError(f"SH degree must be 0, 1, 2 or 3, got {sh_degree}")
+    if sh_degree not in (-1, 0, 1, 2, 3):
+        raise InputError(f"SH degree must be -1 (none), 0, 1, 2 or 3, got {sh_degree}")
+    if container_version not in (1, 2):
+        raise InputError(f"container version must be 1 or 2, got {container_version}")
+    if container_version == 1:
+        quantization = None
+    elif quantization is None:
+        quantization = default_quantization(points, sh_degree)
     schedule = schedule_for(quality, iters)
     dev = resolve_device(device)
 
     t_start = time.perf_counter()
     normalized, scale, offset = normalize(v)
-    config = FitConfig(points=points, sh_degree=sh_degree, schedule=schedule, init=init, seed=seed)
+    config = FitConfig(
+        points=points, sh_degree=sh_degree, schedule=schedule, init=init, seed=seed, quantization=quantization
+    )
     result = fit(normalized, f, config, device=dev, progress=progress)
 
     t0 = time.perf_counter()
-    data = pack(
-        TetWeaveFile(
-            points=result.points,
-            s=result.s,
-            c=result.c,
-            sh_degree=sh_degree,
-            scale=float(scale),
-            offset=np.asarray(offset, dtype=np.float64),
-            flags=backend_flags(result.backend),
-        )
-    )
+    data = pack_result(result, scale, offset)
     out_v, out_f = decode(data)
     seconds = dict(result.stage_seconds)
     seconds["extract"] = time.perf_counter() - t0
     seconds["total"] = time.perf_counter() - t_start
     stats = {
         "bytes": len(data),
-        "points_kept": int(len(result.s)),
+        "points_kept": int(len(result.finish.s)),
+        "container_version": result.finish.version,
         "points_target": points,
         "sh_degree": sh_degree,
         "quality": quality,
@@ -139,3 +143,29 @@ def encode(
 
         stats["chamfer"] = chamfer_distance(v, f, out_v, out_f, n_samples=SUMMARY_CHAMFER_SAMPLES, seed=seed)
     return EncodeResult(data, out_v, out_f, stats)
+
+
+def pack_result(result: FitResult, scale: float, offset: np.ndarray) -> bytes:
+    """The `.tw` bytes of a fit: version 1 or 2 after `result.finish.version`."""
+    from tetweave_codec.formats.tw import TetWeaveFile, backend_flags, pack
+
+    fin = result.finish
+    offset = np.asarray(offset, dtype=np.float64)
+    if fin.version == 1:
+        return pack(
+            TetWeaveFile(
+                points=fin.points,
+                s=fin.s,
+                c=fin.c,
+                sh_degree=result.sh_degree,
+                scale=float(scale),
+                offset=offset,
+                flags=backend_flags(result.backend),
+            )
+        )
+    raise NotImplementedError
+
+
+def default_quantization(points: int, sh_degree: int) -> Quantization:
+    """Container v2's position bits and steps for a fit of `points` grid points (measured, see README)."""
+    return Quantization()

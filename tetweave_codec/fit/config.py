@@ -1,0 +1,122 @@
+"""Fit settings: schedules (the `--quality` presets), loss weights, step sizes, quantization and `FitConfig`.
+
+Plain frozen dataclasses; every value that changes what the encoder writes lives here, so "same options, same
+bytes" can be read off one object.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+from tetweave_codec.errors import TetweaveError
+
+
+@dataclass(frozen=True)
+class Schedule:
+    """How long and how finely to fit. See `QUALITY` for the presets."""
+
+    main_iters: int
+    late_iters: int
+    views_per_iter: int
+    size: int  # render resolution (pixels per side)
+    n_views: int  # target views rendered up front
+    delaunay_every: int = 5  # paper's m
+    resample_at: tuple[float, ...] = (0.15, 0.35, 0.55)  # fractions of the main stage
+    start_fraction: float = 0.5  # initial points, as a fraction of the target count
+
+
+# Iteration counts are far below the paper's 5000 + 2000: the SDF start begins near the answer, and the 3-D term
+# converges in a few hundred steps (see benchmarks/encode_speed.py). "default" is sized for 16K points in about
+# 3 minutes on 2 CPU cores.
+QUALITY: dict[str, Schedule] = {
+    "fast": Schedule(main_iters=80, late_iters=40, views_per_iter=2, size=128, n_views=32),
+    "default": Schedule(main_iters=250, late_iters=150, views_per_iter=2, size=160, n_views=64),
+    "best": Schedule(main_iters=800, late_iters=400, views_per_iter=4, size=256, n_views=96),
+}
+
+
+@dataclass(frozen=True)
+class Weights:
+    """Loss weights (paper Appendix A: mask 10, depth 250, normals 1, fairness 0.35, ODT 0.1, sign 1).
+
+    The image terms are the paper's weights scaled by 0.1. With the exact 3-D term present, renders at
+    CPU-affordable resolutions mostly add pixel-scale noise: spot at 8K points (120 + 60 iterations) reached
+    Chamfer 7.3e-4 with the paper's image weights, 5.1e-4 with a tenth of them and 4.3e-4 without them.
+    """
+
+    mask: float = 1.0
+    depth: float = 25.0
+    normals: float = 0.1
+    fairness: float = 0.35
+    odt: float = 0.1
+    # The paper's 1.0 suppresses spurious surfaces grown from a random start. From the SDF start there are none,
+    # and at 1.0 the term (whose gradient pulls |s| up on both ends of every active edge, i.e. vertices towards
+    # edge midpoints) made a torus fit worse than its starting point (Chamfer 3.6e-3 -> 5.0e-3).
+    sign: float = 0.02
+    surface: float = 1000.0  # 3-D Chamfer against the input (surface_loss.py); 0 = the paper's renders only
+
+    @classmethod
+    def paper(cls) -> Weights:
+        """The paper's weights (Appendix A), renders only: the single source of "paper's weights"."""
+        return cls(mask=10.0, depth=250.0, normals=1.0, fairness=0.35, odt=0.1, sign=1.0, surface=0.0)
+
+
+@dataclass(frozen=True)
+class LearningRates:
+    """AdamW step sizes.
+
+    The paper uses 3e-4 (points), 2e-3 (s), 3e-3 (c) from a random start. Adam moves each parameter by about its
+    step size per iteration whatever the gradient's scale, and from the SDF start s is already within a fraction
+    of the grid spacing of its optimum, so those steps only add jitter (torus, 2K points: Chamfer 4.9e-3 with
+    the paper's steps, 3.6e-3 with these).
+    """
+
+    points: float = 1e-4
+    s: float = 5e-4
+    c: float = 1e-3
+
+    @classmethod
+    def paper(cls) -> LearningRates:
+        """The paper's step sizes (Appendix A)."""
+        return cls(points=3e-4, s=2e-3, c=3e-3)
+
+
+@dataclass(frozen=True)
+class Quantization:
+    """How the container v2 quantizes what the fit found (formats/quantize.py applies it).
+
+    position_bits: b, 2^b grid cells per axis over the fixed cube of formats.quantize.
+    s_step: step of the sign-preserving mid-rise quantizer of s (normalized-frame units).
+    c_band_steps: step of the SH coefficients of band l = 0, 1, 2, 3.
+    """
+
+    position_bits: int = 10
+    s_step: float = 1e-3
+    c_band_steps: tuple[float, float, float, float] = (0.2, 0.2, 0.2, 0.2)
+
+
+@dataclass(frozen=True)
+class FitConfig:
+    points: int = 16384
+    sh_degree: int = 1
+    schedule: Schedule = QUALITY["default"]
+    weights: Weights = field(default_factory=Weights)
+    lr: LearningRates = field(default_factory=LearningRates)
+    init: str = "sdf"  # "sdf" (from the input) or "random" (the paper's ball)
+    backend: str = "auto"  # Delaunay backend, see delaunay.resolve_backend
+    seed: int = 0
+    # None: container v1 (float16 positions, s and c); else container v2 with this quantization.
+    quantization: Quantization | None = field(default_factory=Quantization)
+
+
+def schedule_for(quality: str, iters: int | None = None) -> Schedule:
+    """The preset `quality`, with the main+late iterations scaled to `iters` in total when given."""
+    if quality not in QUALITY:
+        raise TetweaveError(f"unknown quality {quality!r}; choose one of {', '.join(QUALITY)}")
+    sch = QUALITY[quality]
+    if iters is None:
+        return sch
+    if iters < 2:
+        raise TetweaveError(f"--iters must be at least 2, got {iters}")
+    main = max(1, int(round(iters * sch.main_iters / (sch.main_iters + sch.late_iters))))
+    return replace(sch, main_iters=main, late_iters=max(1, iters - main))

@@ -1,0 +1,144 @@
+"""The fit's finish: fix the points to what the container stores, triangulate once as the decoder will, then
+optimize only s and c on that triangulation, and hand back exactly the values the container writes.
+
+* Container v2 (``config.quantization`` set): active points are snapped to the position grid of
+  ``formats.quantize`` (colliding points merged, first occurrence wins) and put in the canonical (octree) order;
+  the late stage optimizes latent s and c through the container's quantizers with straight-through rounding (the
+  forward pass sees the dequantized values, the gradient passes to the latent ones), so the optimized mesh is the
+  decoded one; finally s and c are quantized to integer symbols.
+* Container v1 (``config.quantization`` None): active points rounded to float16 (float16 collisions dropped),
+  plain late stage, then s and c rounded to float16 with |s| >= 2^-14 so that no sign is lost.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from tetweave_codec.fit.config import Quantization
+from tetweave_codec.fit.step import FitContext, Params, backward, regularized_loss, triangulate
+from tetweave_codec.formats import quantize as Q
+from tetweave_codec.geometry.active import active_mask
+
+# Smallest |s| a v1 file stores: float16 keeps its sign (and marching tets never puts a vertex exactly on a grid
+# point, which would give zero-area triangles). The smallest normal float16.
+V1_MIN_ABS_S = 2.0**-14
+# |c| above this saturates tanh for any direction; clamping keeps c finite in float16.
+V1_MAX_ABS_C = 64.0
+
+
+@dataclass
+class FinishResult:
+    """The values a container stores, and the decoded values they stand for.
+
+    version 1: points (N,3), s (N,), c (N,q) are float16 arrays; cells, s_sym, c_sym are None.
+    version 2: cells (N,3) int64 in canonical order, s_sym (N,) int64, c_sym (N,q) int64 and `quantization`;
+    points (N,3), s (N,), c (N,q) are their dequantized float64 values.
+    """
+
+    version: int
+    points: np.ndarray
+    s: np.ndarray
+    c: np.ndarray
+    quantization: Quantization | None = None
+    cells: np.ndarray | None = None
+    s_sym: np.ndarray | None = None
+    c_sym: np.ndarray | None = None
+
+
+def finish(params: Params, ctx: FitContext) -> FinishResult:
+    """Finalize the point set for the container and run the late stage. Raises TetweaveError with no surface."""
+    from tetweave_codec.errors import TetweaveError
+
+    t0 = time.perf_counter()
+    grid = triangulate(params.points, ctx.backend)
+    with torch.no_grad():
+        keep = active_mask(grid.tets, params.s).cpu().numpy()
+    points, s, c = params.numpy()
+    points, s, c = points[keep], s[keep], c[keep]
+    quant = ctx.config.quantization
+    if quant is None:
+        stored = points.astype(np.float16)
+        _, first = np.unique(stored.view(np.uint16).reshape(-1, 3), axis=0, return_index=True)
+        first = np.sort(first)
+        stored, fixed = stored[first], stored[first].astype(np.float64)
+    else:
+        cells, first = Q.merge_collisions(Q.quantize_positions(points, quant.position_bits))
+        fixed = Q.dequantize_positions(cells, quant.position_bits)
+    if len(fixed) < 4:
+        raise TetweaveError("the fit produced no surface (is the input a closed or nearly closed shape?)")
+    s, c = s[first], c[first]
+    ctx.seconds["finalize"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    quantizer = None if quant is None else _Quantizer(quant, ctx.config.sh_degree)
+    s, c = late_stage(fixed, s, c, ctx, quantizer)
+    ctx.seconds["late"] = time.perf_counter() - t0
+    if quant is None:
+        s16, c16 = round_float16(s, c)
+        return FinishResult(1, stored, s16, c16)
+    s_sym, c_sym = quantizer.symbols(s, c)
+    s_val, c_val = quantizer.values(s_sym, c_sym)
+    return FinishResult(2, fixed, s_val, c_val, quant, cells, s_sym, c_sym)
+
+
+class _Quantizer:
+    """The container's s and c quantizers, as numpy symbols and as straight-through torch stand-ins."""
+
+    def __init__(self, quant: Quantization, sh_degree: int):
+        self.s_step = Q.stored_step(quant.s_step)
+        self.c_steps = Q.c_steps(sh_degree, quant.c_band_steps[: sh_degree + 1])
+
+    def symbols(self, s: np.ndarray, c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return Q.quantize_s(s, self.s_step), Q.quantize_c(np.asarray(c).reshape(len(s), -1), self.c_steps)
+
+    def values(self, s_sym: np.ndarray, c_sym: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return Q.dequantize_s(s_sym, self.s_step), Q.dequantize_c(c_sym, self.c_steps)
+
+    def straight_through(self, s: Tensor, c: Tensor) -> tuple[Tensor, Tensor]:
+        """Dequantized values in the forward pass, identity gradient to the latent s and c."""
+        s_np = s.detach().cpu().numpy().astype(np.float64)
+        c_np = c.detach().cpu().numpy().astype(np.float64)
+        s_val, c_val = self.values(*self.symbols(s_np, c_np))
+        s_q = torch.as_tensor(s_val, dtype=s.dtype, device=s.device)
+        c_q = torch.as_tensor(c_val.reshape(c.shape), dtype=c.dtype, device=c.device)
+        return s + (s_q - s).detach(), c + (c_q - c).detach()
+
+
+def late_stage(
+    points: np.ndarray,
+    s: np.ndarray,
+    c: np.ndarray,
+    ctx: FitContext,
+    quantizer: _Quantizer | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Optimize s and c on fixed points (N,3) float64 and their one triangulation; returns latent s, c (float32).
+
+    The triangulation is computed from the float64 points in the given order, exactly as the decoder computes it.
+    """
+    sch = ctx.config.schedule
+    params = Params(points.astype(np.float32), s, c, ctx.device, ctx.config.lr, optimize_points=False)
+    grid = triangulate(points, ctx.backend, ctx.device)
+    for it in range(sch.late_iters):
+        views = ctx.random_views()
+        s_in, c_in = (params.s, params.c) if quantizer is None else quantizer.straight_through(params.s, params.c)
+        loss, parts = regularized_loss(ctx, params.points, s_in, c_in, grid, views, with_grid_terms=False)
+        backward(loss, params)
+        params.opt_sc.step()
+        params.opt_sc.zero_grad(set_to_none=True)
+        ctx.history.append(("late", it, parts["total"]))
+        ctx.progress("late", it + 1, sch.late_iters, {"loss": parts["total"], "points": len(s)})
+    _, s_out, c_out = params.numpy()
+    return s_out, c_out
+
+
+def round_float16(s: np.ndarray, c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Container v1's s and c: float16, with |s| kept above V1_MIN_ABS_S so that no sign is lost to rounding."""
+    sign = np.where(s < 0, -1.0, 1.0)
+    s16 = (sign * np.maximum(np.abs(s), V1_MIN_ABS_S)).astype(np.float16)
+    c16 = np.clip(c, -V1_MAX_ABS_C, V1_MAX_ABS_C).astype(np.float16)
+    return s16, c16

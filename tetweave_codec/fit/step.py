@@ -1,0 +1,165 @@
+"""One optimization step, shared by every stage of the fit: parameters, triangulation, extraction, loss, backward.
+
+`FitContext` is what all stages of one fit share (settings, targets, RNG, progress); `Params` holds the optimized
+tensors; `Grid` a Delaunay triangulation on their device.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import NamedTuple
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from tetweave_codec.fit import losses
+from tetweave_codec.fit.config import FitConfig, LearningRates
+from tetweave_codec.fit.surface_loss import SurfaceTarget
+from tetweave_codec.fit.targets import Targets
+from tetweave_codec.geometry.delaunay import tetrahedralize
+from tetweave_codec.geometry.marching_tets import marching_tets
+from tetweave_codec.render import render_maps
+
+ProgressFn = Callable[[str, int, int, dict], None]
+
+
+def noop_progress(stage: str, done: int, total: int, info: dict) -> None:
+    pass
+
+
+@dataclass
+class FitContext:
+    """What every stage of one fit shares.
+
+    config: the settings. targets: renders of the input. surface: the 3-D Chamfer term (None when weighted 0).
+    backend: the Delaunay backend the decoder will use. generator: the one RNG of the fit (seeded by config.seed).
+    history: (stage, iteration, loss) samples. seconds: wall time per stage.
+    """
+
+    config: FitConfig
+    targets: Targets
+    surface: SurfaceTarget | None
+    backend: str
+    device: torch.device
+    generator: torch.Generator
+    progress: ProgressFn = noop_progress
+    history: list[tuple[str, int, float]] = field(default_factory=list)
+    seconds: dict[str, float] = field(default_factory=dict)
+
+    def random_views(self) -> Tensor:
+        """Indices of this iteration's target views."""
+        n = self.config.schedule.views_per_iter
+        return torch.randperm(len(self.targets), generator=self.generator)[:n].to(self.device)
+
+
+class Params:
+    """The optimized tensors and their optimizers; rebuilt whenever the point set changes."""
+
+    def __init__(
+        self,
+        points: np.ndarray,
+        s: np.ndarray,
+        c: np.ndarray,
+        device: torch.device,
+        lr: LearningRates,
+        optimize_points: bool = True,
+    ):
+        self.points = torch.tensor(
+            np.asarray(points), dtype=torch.float32, device=device, requires_grad=optimize_points
+        )
+        self.s = torch.tensor(np.asarray(s), dtype=torch.float32, device=device, requires_grad=True)
+        self.c = torch.tensor(np.asarray(c), dtype=torch.float32, device=device, requires_grad=True)
+        self.opt_sc = torch.optim.AdamW(
+            [{"params": [self.s], "lr": lr.s}, {"params": [self.c], "lr": lr.c}], weight_decay=0.0
+        )
+        self.opt_p = torch.optim.AdamW([self.points], lr=lr.points, weight_decay=0.0) if optimize_points else None
+
+    def numpy(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """points (N,3) float64, s (N,) float32, c (N,q) float32."""
+        return (
+            self.points.detach().cpu().numpy().astype(np.float64),
+            self.s.detach().cpu().numpy(),
+            self.c.detach().cpu().numpy(),
+        )
+
+
+class Grid(NamedTuple):
+    """A Delaunay triangulation on the points' device: tets (T,4) long, hull (H,3) long outward hull faces."""
+
+    tets: Tensor
+    hull: Tensor
+
+
+def triangulate(points: Tensor | np.ndarray, backend: str, device: torch.device | None = None) -> Grid:
+    """Delaunay of points (N,3) with the decoder's backend (float64 on the CPU, as the decoder computes it)."""
+    if isinstance(points, Tensor):
+        device = points.device if device is None else device
+        points = points.detach().cpu().numpy()
+    tri = tetrahedralize(np.asarray(points, dtype=np.float64), backend)
+    return Grid(torch.from_numpy(tri.tets).to(device), torch.from_numpy(tri.hull_faces).to(device))
+
+
+def extract(points: Tensor, s: Tensor, c: Tensor, grid: Grid):
+    """The mesh exactly as the decoder extracts it (hull caps included), differentiable."""
+    return marching_tets(points, grid.tets, s, c, hull_faces=grid.hull)
+
+
+def regularized_loss(
+    ctx: FitContext,
+    points: Tensor,
+    s: Tensor,
+    c: Tensor,
+    grid: Grid,
+    views: Tensor,
+    with_grid_terms: bool,
+    odt_factor: float = 1.0,
+) -> tuple[Tensor, dict[str, float]]:
+    """Total loss of one iteration and its parts (floats, for logging).
+
+    points (N,3), s (N,), c (N,q): the values to extract from (the latent ones, or their quantized stand-ins).
+    odt_factor scales the ODT term; 0 skips it. Positions stay fixed between triangulations, so the ODT value
+    and gradient are the same on all m iterations of a period: the main stage evaluates it once per period with
+    factor m instead of m times (saves ~90 ms per iteration at 16K points).
+    """
+    weights = ctx.config.weights
+    mt = extract(points, s, c, grid)
+    parts: dict[str, float] = {}
+    total = losses.sign_loss(s, mt.edges) * weights.sign
+    parts["sign"] = float(total.detach())
+    if mt.faces.shape[0] > 0:
+        cams, target_maps = ctx.targets.select(views)
+        maps = render_maps(mt.vertices, mt.faces, cams, ctx.config.schedule.size)
+        recon, recon_parts = losses.image_loss(maps, target_maps, weights)
+        total = total + recon
+        parts.update(recon_parts)
+        if ctx.surface is not None and weights.surface > 0:
+            chamfer = ctx.surface.loss(mt.vertices, mt.faces, ctx.generator)
+            total = total + weights.surface * chamfer
+            parts["surface"] = float(chamfer.detach())
+        if with_grid_terms:
+            fair = losses.fairness_loss(mt.vertices, mt.faces) * weights.fairness
+            total = total + fair
+            parts["fairness"] = float(fair.detach())
+    if with_grid_terms and odt_factor > 0:
+        odt = losses.odt_loss(points, grid.tets) * (weights.odt * odt_factor)
+        total = total + odt
+        parts["odt"] = float(odt.detach())
+    parts["total"] = float(total.detach())
+    return total, parts
+
+
+def backward(loss: Tensor, params: Params) -> None:
+    """Backpropagate, dropping non-finite gradient entries.
+
+    A vertex on an edge whose two directional distances are both within float32 rounding of zero has an unbounded
+    derivative; one such edge must not poison every parameter through Adam's moments, so its gradient is zeroed
+    (the next triangulation or step moves it away from the degenerate spot).
+    """
+    if not bool(torch.isfinite(loss)):
+        return
+    loss.backward()
+    for t in (params.points, params.s, params.c):
+        if t.grad is not None:
+            torch.nan_to_num_(t.grad, nan=0.0, posinf=0.0, neginf=0.0)
