@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -292,61 +293,109 @@ def test_sign_loss_no_change_is_zero():
 # --- images ---
 
 
-def _maps(seed: int, b: int = 2, h: int = 5, w: int = 4) -> dict[str, torch.Tensor]:
-    g = torch.Generator().manual_seed(seed)
-    return {
-        "mask": (torch.rand(b, h, w, generator=g) > 0.5).double(),
-        "depth": torch.rand(b, h, w, generator=g, dtype=torch.float64),
-        "normals": torch.nn.functional.normalize(torch.randn(b, h, w, 3, generator=g, dtype=torch.float64), dim=-1),
-    }
+def _render(mask, depth, normals, face_id) -> SimpleNamespace:
+    """A stand-in for render.RenderMaps: the fields image_loss reads."""
+    return SimpleNamespace(
+        mask=torch.tensor(mask, dtype=torch.float64),
+        depth=torch.tensor(depth, dtype=torch.float64),
+        normals=torch.tensor(normals, dtype=torch.float64),
+        fragments=SimpleNamespace(face_id=torch.tensor(face_id)),
+    )
 
 
-def test_reconstruction_loss_by_hand():
-    maps, targets = _maps(0), _maps(1)
-    total, parts = losses.reconstruction_loss(maps, targets)
-    m = targets["mask"]
-    mask = (maps["mask"] - m).abs().mean()
-    depth = ((m * (maps["depth"] - targets["depth"])) ** 2).mean()
-    normals = (((maps["normals"] - targets["normals"]) ** 2).sum(-1) * m).mean()  # m is 0/1 here
-    torch.testing.assert_close(parts["mask"], mask)
-    torch.testing.assert_close(parts["depth"], depth)
-    torch.testing.assert_close(parts["normals"], normals)
-    torch.testing.assert_close(total, 10 * mask + 250 * depth + normals)
+def _target(mask, depth, normals) -> SimpleNamespace:
+    return SimpleNamespace(
+        mask=torch.tensor(mask, dtype=torch.float64),
+        depth=torch.tensor(depth, dtype=torch.float64),
+        normals=torch.tensor(normals, dtype=torch.float64),
+    )
 
 
-def test_reconstruction_loss_perfect_match_and_outside_mask():
-    targets = _maps(2)
-    maps = {k: v.clone() for k, v in targets.items()}
-    outside = targets["mask"] == 0
-    maps["depth"][outside] = 7.0  # errors off the target's silhouette are not penalized
-    maps["normals"][outside] = 0.0
-    total, parts = losses.reconstruction_loss(maps, targets)
-    assert float(total) == 0.0
+UNIT = SimpleNamespace(mask=1.0, depth=1.0, normals=1.0)
+X, Y, Z = [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]
 
 
-def test_reconstruction_loss_weights_and_object_input():
-    class Maps:
-        def __init__(self, d):
-            self.__dict__.update(d)
-
-    maps, targets = _maps(3), _maps(4)
-    weights = {"depth": 0.0, "normals": 2.0}
-    total, parts = losses.reconstruction_loss(Maps(maps), Maps(targets), weights, norm="l2")
-    assert set(parts) == {"mask", "normals"}
-    diff = targets["mask"].unsqueeze(-1) * (maps["normals"] - targets["normals"])
-    l2 = torch.sqrt((diff**2).sum(-1) + 1e-8)
-    torch.testing.assert_close(parts["normals"], l2.mean())
-    torch.testing.assert_close(total, 10 * parts["mask"] + 2 * parts["normals"])
-    with pytest.raises(ValueError):
-        losses.reconstruction_loss(maps, targets, {"colour": 1.0})
+def _three_pixels():
+    """One view of 1 x 3 pixels: both see a surface at pixel 0, only the target at 1, only the render at 2."""
+    maps = _render([[[0.75, 0.0, 0.5]]], [[[2.0, 0.0, 5.0]]], [[[Z, [0.0] * 3, X]]], [[[0, -1, 3]]])
+    target = _target([[[1.0, 1.0, 0.0]]], [[[2.5, 3.0, 0.0]]], [[[Y, Z, [0.0] * 3]]])
+    return maps, target
 
 
-def test_reconstruction_loss_gradients_flow():
-    maps, targets = _maps(5), _maps(6)
-    maps = {k: v.clone().requires_grad_(True) for k, v in maps.items()}
-    total, _ = losses.reconstruction_loss(maps, targets)
+def test_image_loss_by_hand():
+    maps, target = _three_pixels()
+    total, parts = losses.image_loss(maps, target, SimpleNamespace(mask=2.0, depth=3.0, normals=5.0))
+    mask = (0.25 + 1.0 + 0.5) / 3  # L1 over all pixels, whoever sees what
+    depth = (math.sqrt(0.5**2 + 1e-8) + 2 * math.sqrt(1e-8)) / 3  # |.| (sqrt(x + 1e-8)) at pixel 0 only
+    normals = 2.0 / 3  # |Z - Y|^2 = 2 at pixel 0 only
+    assert parts["mask"] == pytest.approx(2.0 * mask, rel=1e-12)
+    assert parts["depth"] == pytest.approx(3.0 * depth, rel=1e-12)
+    assert parts["normals"] == pytest.approx(5.0 * normals, rel=1e-12)
+    assert all(type(v) is float for v in parts.values())
+    assert float(total) == pytest.approx(2.0 * mask + 3.0 * depth + 5.0 * normals, rel=1e-12)
+
+
+def test_image_loss_compares_depth_and_normals_only_where_both_see_a_surface():
+    maps, target = _three_pixels()
+    _, parts = losses.image_loss(maps, target, UNIT)
+    # errors where only one side sees a surface change nothing (the mask term handles silhouettes)
+    maps.depth[0, 0, 1:] = torch.tensor([100.0, -7.0], dtype=torch.float64)
+    maps.normals[0, 0, 1:] = -maps.normals[0, 0, 1:] + 3.0
+    target.depth[0, 0, 2], target.normals[0, 0, 2] = 9.0, torch.tensor(X, dtype=torch.float64)
+    _, moved = losses.image_loss(maps, target, UNIT)
+    assert moved == parts
+    # an error where both see the surface does count
+    maps.depth[0, 0, 0] = 2.25
+    _, closer = losses.image_loss(maps, target, UNIT)
+    assert closer["depth"] == pytest.approx((math.sqrt(0.25**2 + 1e-8) + 2e-4) / 3, rel=1e-12)
+    # the paper's masking by the target alone would have compared pixel 1 (depth 0 against 3): not what we do
+    paper = float(losses.depth_loss(maps.depth, target.depth, target.mask, norm="l2"))
+    assert paper > closer["depth"] + 0.9
+
+
+def test_image_loss_perfect_match_leaves_only_the_depth_epsilon():
+    maps, target = _three_pixels()
+    same = _render(target.mask.tolist(), target.depth.tolist(), target.normals.tolist(), [[[0, 1, -1]]])
+    total, parts = losses.image_loss(same, target, SimpleNamespace(mask=10.0, depth=250.0, normals=1.0))
+    assert parts["mask"] == 0.0 and parts["normals"] == 0.0
+    assert parts["depth"] == pytest.approx(250.0 * 1e-4, rel=1e-9)  # sqrt(0 + 1e-8) per pixel
+    assert float(total) == pytest.approx(parts["depth"])
+
+
+def test_image_loss_is_linear_in_the_weights():
+    g = torch.Generator().manual_seed(0)
+    b, h, w = 2, 6, 5
+    maps = _render(
+        torch.rand(b, h, w, generator=g).tolist(),
+        torch.rand(b, h, w, generator=g).tolist(),
+        torch.nn.functional.normalize(torch.randn(b, h, w, 3, generator=g), dim=-1).tolist(),
+        torch.randint(-1, 4, (b, h, w), generator=g).tolist(),
+    )
+    target = _target(
+        (torch.rand(b, h, w, generator=g) > 0.4).double().tolist(),
+        torch.rand(b, h, w, generator=g).tolist(),
+        torch.nn.functional.normalize(torch.randn(b, h, w, 3, generator=g), dim=-1).tolist(),
+    )
+    _, unit = losses.image_loss(maps, target, UNIT)
+    assert min(unit.values()) > 0
+    weights = SimpleNamespace(mask=0.5, depth=25.0, normals=0.0)
+    total, parts = losses.image_loss(maps, target, weights)
+    for key in ("mask", "depth", "normals"):
+        assert parts[key] == pytest.approx(getattr(weights, key) * unit[key], rel=1e-12)
+    assert float(total) == pytest.approx(sum(parts.values()), rel=1e-12)
+
+
+def test_image_loss_gradients_flow_where_the_terms_look():
+    maps, target = _three_pixels()
+    for name in ("mask", "depth", "normals"):
+        getattr(maps, name).requires_grad_(True)
+    total, _ = losses.image_loss(maps, target, UNIT)
     total.backward()
-    assert all(float(v.grad.abs().sum()) > 0 for v in maps.values())
+    assert bool((maps.mask.grad != 0).all())  # every pixel's coverage is compared
+    assert maps.depth.grad[0, 0, 0] != 0 and bool((maps.depth.grad[0, 0, 1:] == 0).all())
+    assert bool((maps.normals.grad[0, 0, 0] != 0).any()) and bool((maps.normals.grad[0, 0, 1:] == 0).all())
+    # descent on the depth moves the render towards the target's 2.5
+    assert maps.depth.grad[0, 0, 0] < 0
 
 
 def test_sign_loss_zero_counts_as_outside():
