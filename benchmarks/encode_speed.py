@@ -6,7 +6,8 @@
 For each mesh and point count: seconds per stage (targets, init, main, finalize, late, extract), total, file bytes,
 points kept and the point-to-surface Chamfer distance in the input's normalized frame. With --baseline it also runs
 the paper-style fit in the same wall-clock budget as ours at that point count: random start in a ball, renders
-only (no 3-D term), the paper's step sizes and weights — and prints the ratio of the Chamfer distances.
+only (no 3-D term), the paper's step sizes and weights (`Weights.paper()`, `LearningRates.paper()`),
+the same container as ours — and prints the ratio of the Chamfer distances.
 Run it on a quiet machine: torch's threads slow down badly when other processes share the cores.
 """
 
@@ -20,7 +21,8 @@ from pathlib import Path
 import torch
 from tetweave_codec.cli.common import parse_count
 
-from tetweave_codec.fit.loop import QUALITY, FitConfig, LearningRates, Weights, fit
+from tetweave_codec.fit.config import QUALITY, FitConfig, LearningRates, Weights
+from tetweave_codec.fit.loop import fit
 from tetweave_codec.meshio import load_mesh, normalize
 from tetweave_codec.metrics import chamfer_distance
 
@@ -40,31 +42,24 @@ def _encode_once(vertices, faces, points: int, quality: str, seed: int = 0) -> d
 
 
 def _paper_style(vertices, faces, points: int, budget_s: float, quality: str, seed: int = 0) -> tuple[float, int]:
-    """The paper's recipe (random start, renders only, its steps and weights), stopped at about `budget_s`.
+    """The paper's recipe (random start, renders only, `Weights.paper()`, `LearningRates.paper()`), stopped at about
+    `budget_s`.
 
     Iterations are sized from a short timing run so the whole fit takes about the budget. Returns (Chamfer, iters).
     """
     from tetweave_codec.decoder import mesh_from_points
 
     normalized, _, _ = normalize(vertices)
-    paper_lr = LearningRates(points=3e-4, s=2e-3, c=3e-3)
-    paper_w = Weights(sign=1.0, surface=0.0)
+    paper = {"weights": Weights.paper(), "lr": LearningRates.paper(), "init": "random"}
     probe = replace(QUALITY[quality], main_iters=10, late_iters=5, resample_at=())
     t0 = time.perf_counter()
-    fit(
-        normalized,
-        faces,
-        FitConfig(points=points, schedule=probe, weights=paper_w, lr=paper_lr, init="random", seed=seed),
-    )
+    fit(normalized, faces, FitConfig(points=points, schedule=probe, seed=seed, **paper))
     per_iter = (time.perf_counter() - t0) / 15.0
     iters = max(20, int(budget_s / per_iter))
     sch = replace(QUALITY[quality], main_iters=int(iters * 0.7), late_iters=iters - int(iters * 0.7))
-    res = fit(
-        normalized,
-        faces,
-        FitConfig(points=points, schedule=sch, weights=paper_w, lr=paper_lr, init="random", seed=seed),
-    )
-    v, f = mesh_from_points(res.points, res.s, res.c, res.sh_degree, backend=res.backend)
+    res = fit(normalized, faces, FitConfig(points=points, schedule=sch, seed=seed, **paper))
+    fin = res.finish
+    v, f = mesh_from_points(fin.points, fin.s, fin.c, res.sh_degree, backend=res.backend)
     if len(f) == 0:
         return float("inf"), iters
     return chamfer_distance(normalized, faces, v, f, n_samples=100_000, normalize=False), iters
