@@ -1,4 +1,9 @@
-"""The `.tw` container, version 1: a TetWeave point cloud (positions, base SDF s, SH coefficients c).
+"""The `.tw` container: a TetWeave point cloud (positions, base SDF s, SH coefficients c).
+
+`unpack` reads both versions: 1 (raw float16 arrays, below; `pack`) and 2 (quantized and entropy coded, see
+formats/tw2.py; `pack_v2`, `quantize_file`).
+
+Version 1:
 
 Byte layout (all little-endian; full specification with examples in formats/README.md):
 
@@ -34,6 +39,8 @@ import numpy as np
 
 from tetweave_codec.errors import ContainerError
 from tetweave_codec.geometry.sh import SH_DEGREE_MAX, SH_DEGREE_NONE
+
+from .tw2 import TetWeaveFileV2, pack_v2, quantize_file  # noqa: F401 -- version 2, re-exported
 
 MAGIC = b"\x89TWV\r\n\x1a\n"
 VERSION = 1
@@ -79,6 +86,8 @@ class TetWeaveFile:
     offset: np.ndarray
     flags: int = 0
     codec: int = field(default=CODEC_RAW)
+
+    version = VERSION  # class attribute (not a field): the container version of this kind of contents
 
     @property
     def num_points(self) -> int:
@@ -143,8 +152,11 @@ def _as_f16(a, name: str) -> np.ndarray:
     return arr
 
 
-def unpack(data: bytes | bytearray | memoryview) -> TetWeaveFile:
-    """Parse and validate a `.tw` file. Raises ContainerError (only) with a one-line message."""
+def unpack(data: bytes | bytearray | memoryview) -> TetWeaveFile | TetWeaveFileV2:
+    """Parse and validate a `.tw` file of version 1 (TetWeaveFile) or 2 (`tw2.TetWeaveFileV2`).
+
+    Raises ContainerError (only) with a one-line message.
+    """
     buf = bytes(data)
     size = len(buf)
     if size < len(MAGIC):
@@ -156,8 +168,12 @@ def unpack(data: bytes | bytearray | memoryview) -> TetWeaveFile:
     if size < 10:
         raise ContainerError(f"truncated .tw file: {size} bytes")
     (version,) = struct.unpack_from("<H", buf, 8)
+    if version == 2:
+        from .tw2 import unpack_v2
+
+        return unpack_v2(buf)
     if version != VERSION:
-        raise ContainerError(f"unsupported .tw version {version} (this tetweave reads version {VERSION})")
+        raise ContainerError(f"unsupported .tw version {version} (this tetweave reads versions 1 and 2)")
     if size < HEADER_SIZE + CHECKSUM_SIZE:
         raise ContainerError(f"truncated .tw file: {size} bytes, the header alone needs {HEADER_SIZE}")
     (_, _, header_size, flags, n, degree, codec, reserved, scale, ox, oy, oz, psize) = struct.unpack_from(
@@ -204,7 +220,7 @@ def unpack(data: bytes | bytearray | memoryview) -> TetWeaveFile:
     return TetWeaveFile(points, s, c, int(degree), float(scale), offset, int(flags), int(codec))
 
 
-def read_file(path) -> TetWeaveFile:
+def read_file(path) -> TetWeaveFile | TetWeaveFileV2:
     """Read and unpack a `.tw` file (OSError for unreadable paths, ContainerError for bad content)."""
     with open(path, "rb") as fh:
         return unpack(fh.read())

@@ -1,0 +1,225 @@
+"""Quantization of TetWeave point clouds for `.tw` version 2 -- the one owner of every quantizer.
+
+Both the fit (straight-through rounding) and the container writer call these functions, so the encoder optimizes
+exactly the values the decoder reconstructs. Every function accepts numpy arrays or torch tensors and returns
+the same kind (torch is never imported here: tensors are recognised by duck typing, ``x.floor()`` etc.).
+
+Quantizers (the exact decoder-side formulas are specified in formats/README.md, "Dequantization"):
+
+* positions: a uniform grid of ``2**b`` cells per axis over the fixed cube ``[-GRID_BOUND, GRID_BOUND]**3``,
+  ``b`` in ``POSITION_BITS_MIN..POSITION_BITS_MAX``. Symbol ``k = floor((x + 1.2) / cell)`` clamped to
+  ``[0, 2**b - 1]``; value = the cell centre ``((2k + 1 - 2**b) * 1.2) / 2**b`` (float64, one rounding).
+* s (base signed distance): sign-preserving mid-rise quantizer, ``k = floor(s / step)``, value
+  ``(k + 0.5) * step``. The value is never 0 and ``value < 0 <=> k < 0 <=> s < 0`` (inside stays inside).
+  Symbols are clamped to ``[-S_SYMBOL_LIMIT, S_SYMBOL_LIMIT - 1]``.
+* c (SH coefficients): mid-tread quantizer per coefficient, ``k = round(c / step_j)`` (half to even), value
+  ``k * step_j``, with one step per SH band ``l`` (coefficient ``j`` has band ``floor(sqrt(j))``). Symbols are
+  clamped to ``[-C_SYMBOL_LIMIT, C_SYMBOL_LIMIT]``.
+
+Canonical order: the order in which the octree decoder yields the points, i.e. ascending Morton code with the
+child index ``(bx << 2) | (by << 1) | bz`` at every level (x most significant). Every per-point attribute of a
+version-2 file is stored in this order.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from tetweave_codec.geometry.sh import check_degree, num_coeffs
+
+GRID_BOUND = 1.2  # the fit clamps points to [-GRID_BOUND, GRID_BOUND]^3
+POSITION_BITS_MIN = 6
+POSITION_BITS_MAX = 16
+S_SYMBOL_LIMIT = 2**20  # s symbols lie in [-2**20, 2**20 - 1]; magnitude (k or -k-1) < 2**20
+C_SYMBOL_LIMIT = 2**15  # c symbols lie in [-2**15, 2**15]
+MIN_STEP = 2.0**-126  # steps are normal float32 numbers > 0
+
+
+def _is_tensor(x) -> bool:
+    return type(x).__module__.startswith("torch")
+
+
+def check_bits(bits: int) -> int:
+    """Return `bits` if it is a supported position resolution (6..16 bits per axis), else raise ValueError."""
+    if isinstance(bits, bool) or not isinstance(bits, (int, np.integer)):
+        raise ValueError(f"position bits must be an integer, got {bits!r}")
+    if not POSITION_BITS_MIN <= int(bits) <= POSITION_BITS_MAX:
+        raise ValueError(f"position bits must be in {POSITION_BITS_MIN}..{POSITION_BITS_MAX}, got {bits}")
+    return int(bits)
+
+
+def cell_size(bits: int) -> float:
+    """Edge length of a position cell: ``2 * GRID_BOUND / 2**bits`` (exact: 2.4 scaled by a power of two)."""
+    return 2.0 * GRID_BOUND / float(1 << check_bits(bits))
+
+
+# -----------------------------------------------------------------------------------------------------------
+# positions
+
+
+def quantize_positions(points, bits: int):
+    """Cell index of each point: ``floor((x + GRID_BOUND) / cell)`` clamped to ``[0, 2**bits - 1]``.
+
+    points: (N, 3) float array or tensor. Returns int64 (N, 3) (a long tensor for tensor input).
+    """
+    top = (1 << check_bits(bits)) - 1
+    cell = cell_size(bits)
+    if _is_tensor(points):
+        return ((points + GRID_BOUND) / cell).floor().clamp(0, top).long()
+    p = np.asarray(points, dtype=np.float64)
+    if not np.isfinite(p).all():
+        raise ValueError("points must be finite")
+    return np.clip(np.floor((p + GRID_BOUND) / cell), 0, top).astype(np.int64)
+
+
+def dequantize_positions(cells, bits: int):
+    """Cell centres: ``((2k + 1 - 2**bits) * 1.2) / 2**bits`` in float64 (bit-exact, see formats/README.md).
+
+    cells: (N, 3) integer array or tensor. Returns float64 (N, 3) (a float64 tensor for tensor input).
+    """
+    n = 1 << check_bits(bits)
+    if _is_tensor(cells):
+        import torch
+
+        k = cells.to(torch.float64)
+        return ((2.0 * k + (1.0 - n)) * GRID_BOUND) / n
+    k = np.asarray(cells, dtype=np.int64)
+    if k.size and (k.min() < 0 or k.max() >= n):
+        raise ValueError(f"cell indices must be in [0, {n - 1}]")
+    return ((2 * k + (1 - n)).astype(np.float64) * GRID_BOUND) / n
+
+
+def _spread3(v: np.ndarray) -> np.ndarray:
+    """Insert two zero bits between the low 16 bits of each value (bit i -> bit 3i)."""
+    v = v.astype(np.uint64) & np.uint64(0xFFFF)
+    v = (v | (v << np.uint64(16))) & np.uint64(0x00FF0000FF0000FF)
+    v = (v | (v << np.uint64(8))) & np.uint64(0xF00F00F00F00F00F)
+    v = (v | (v << np.uint64(4))) & np.uint64(0x30C30C30C30C30C3)
+    v = (v | (v << np.uint64(2))) & np.uint64(0x9249249249249249)
+    return v
+
+
+def morton_keys(cells) -> np.ndarray:
+    """Morton code of each cell (uint64): bits of x, y, z interleaved, x most significant within each level."""
+    k = np.asarray(cells, dtype=np.int64).reshape(-1, 3)
+    return (_spread3(k[:, 0]) << np.uint64(2)) | (_spread3(k[:, 1]) << np.uint64(1)) | _spread3(k[:, 2])
+
+
+def canonical_order(cells, bits: int | None = None) -> np.ndarray:
+    """Permutation that sorts cells into the octree decoder's order (ascending Morton code, stable).
+
+    cells: (N, 3) integer array in ``[0, 2**bits)`` (bits only validates the range). Returns int64 (N,).
+    Equal cells keep their input order.
+    """
+    k = np.asarray(cells, dtype=np.int64).reshape(-1, 3)
+    if bits is not None:
+        top = 1 << check_bits(bits)
+        if k.size and (k.min() < 0 or k.max() >= top):
+            raise ValueError(f"cell indices must be in [0, {top - 1}]")
+    return np.argsort(morton_keys(k), kind="stable").astype(np.int64)
+
+
+def merge_collisions(cells) -> tuple[np.ndarray, np.ndarray]:
+    """Merge points that fall into the same cell; the first occurrence (lowest input index) wins.
+
+    Returns (unique_cells (M, 3) int64 in canonical order, first (M,) int64: input index of each kept cell's
+    first occurrence). ``cells[first] == unique_cells``; gather every per-point attribute with ``first``.
+    """
+    k = np.asarray(cells, dtype=np.int64).reshape(-1, 3)
+    keys = morton_keys(k)
+    order = np.argsort(keys, kind="stable")
+    sorted_keys = keys[order]
+    keep = np.ones(len(order), dtype=bool)
+    keep[1:] = sorted_keys[1:] != sorted_keys[:-1]
+    first = order[keep].astype(np.int64)
+    return k[first], first
+
+
+# -----------------------------------------------------------------------------------------------------------
+# base signed distance s
+
+
+def quantize_s(s, step: float):
+    """Mid-rise symbols ``floor(s / step)`` clamped to ``[-S_SYMBOL_LIMIT, S_SYMBOL_LIMIT - 1]`` (s < 0 <=> k < 0)."""
+    step = _check_step(step, "s step")
+    if _is_tensor(s):
+        return (s / step).floor().clamp(-S_SYMBOL_LIMIT, S_SYMBOL_LIMIT - 1).long()
+    x = np.asarray(s, dtype=np.float64)
+    if not np.isfinite(x).all():
+        raise ValueError("s must be finite")
+    return np.clip(np.floor(x / step), -S_SYMBOL_LIMIT, S_SYMBOL_LIMIT - 1).astype(np.int64)
+
+
+def dequantize_s(sym, step: float):
+    """Values ``(k + 0.5) * step`` in float64 (never 0; negative exactly when k < 0)."""
+    step = _check_step(step, "s step")
+    if _is_tensor(sym):
+        import torch
+
+        return (sym.to(torch.float64) + 0.5) * step
+    return (np.asarray(sym, dtype=np.int64).astype(np.float64) + 0.5) * step
+
+
+# -----------------------------------------------------------------------------------------------------------
+# SH coefficients c
+
+
+def sh_band(j: int) -> int:
+    """SH band l of coefficient index j (``l = floor(sqrt(j))``)."""
+    return int(np.floor(np.sqrt(j) + 1e-9))
+
+
+def c_steps(sh_degree: int, band_steps) -> np.ndarray:
+    """Per-coefficient steps (q,) float64 from one step per band ``l = 0..sh_degree`` (q = num_coeffs)."""
+    degree = check_degree(sh_degree)
+    steps = np.asarray(band_steps, dtype=np.float64).reshape(-1)
+    if steps.shape != (degree + 1,):
+        raise ValueError(f"need {degree + 1} band steps for SH degree {degree}, got {steps.shape[0]}")
+    steps = np.array([_check_step(st, "c step") for st in steps], dtype=np.float64)
+    bands = np.array([sh_band(j) for j in range(num_coeffs(degree))], dtype=np.int64)
+    return steps[bands]
+
+
+def quantize_c(c, steps):
+    """Symbols ``round(c / step_j)`` (half to even) clamped to ``[-C_SYMBOL_LIMIT, C_SYMBOL_LIMIT]``.
+
+    c: (N, q); steps: (q,) from `c_steps`. Returns int64 (N, q) (long tensor for tensor input).
+    """
+    st = np.asarray(steps, dtype=np.float64).reshape(-1)
+    if _is_tensor(c):
+        import torch
+
+        st_t = torch.as_tensor(st, dtype=c.dtype, device=c.device)
+        return (c / st_t).round().clamp(-C_SYMBOL_LIMIT, C_SYMBOL_LIMIT).long()
+    x = np.asarray(c, dtype=np.float64)
+    if x.ndim != 2 or x.shape[1] != st.shape[0]:
+        raise ValueError(f"c must be (N, {st.shape[0]}), got {x.shape}")
+    if not np.isfinite(x).all():
+        raise ValueError("c must be finite")
+    return np.clip(np.round(x / st), -C_SYMBOL_LIMIT, C_SYMBOL_LIMIT).astype(np.int64)
+
+
+def dequantize_c(sym, steps):
+    """Values ``k * step_j`` in float64, (N, q)."""
+    st = np.asarray(steps, dtype=np.float64).reshape(-1)
+    if _is_tensor(sym):
+        import torch
+
+        return sym.to(torch.float64) * torch.as_tensor(st, dtype=torch.float64, device=sym.device)
+    return np.asarray(sym, dtype=np.int64).astype(np.float64).reshape(-1, st.shape[0]) * st
+
+
+def stored_step(step) -> float:
+    """A step as the container stores it: rounded to float32 (every quantizer here uses this value)."""
+    with np.errstate(over="ignore"):
+        st = float(np.float32(float(step)))
+    if not (np.isfinite(st) and st >= MIN_STEP):
+        raise ValueError(f"steps must be finite and >= {MIN_STEP:g} (as float32), got {step}")
+    return st
+
+
+def _check_step(step, name: str) -> float:
+    try:
+        return stored_step(step)
+    except ValueError:
+        raise ValueError(f"{name} must be finite and >= {MIN_STEP:g} (as float32), got {step}") from None

@@ -1,0 +1,260 @@
+"""The `.tw` container, version 2: quantized positions, s and c, entropy coded (octree + range coder).
+
+Byte layout (little-endian, no padding; full specification in formats/README.md, "Version 2"):
+
+======  =========  =======  ==========================================================================
+offset  size       type     field
+======  =========  =======  ==========================================================================
+0       8          bytes    magic ``89 54 57 56 0D 0A 1A 0A`` (as version 1)
+8       2          uint16   version = 2
+10      1          uint8    flags; bit 0: Delaunay backend (0 = TetGen, 1 = Qhull); others 0
+11      1          int8     SH degree d in -1..3
+12      1          uint8    position bits b in 6..16
+13      4          uint32   N, number of points (<= MAX_POINTS)
+17      8          float64  scale    } original = normalized * scale + offset
+25      24         float64  offset x, y, z
+49      4          float32  s step
+53      4 (d + 1)  float32  c step of SH band l = 0..d
+H - 12  12         uint32   byte sizes of the sections: positions, s, c     (H = 65 + 4 (d + 1))
+H       ...        bytes    positions section, s section, c section
+end-4   4          uint32   CRC-32 (zlib) of every byte before it
+======  =========  =======  ==========================================================================
+
+`unpack_v2` validates everything and raises `ContainerError` -- and only that -- with a one-line message.
+"""
+
+from __future__ import annotations
+
+import struct
+import zlib
+from dataclasses import dataclass, field
+from functools import cached_property
+
+import numpy as np
+
+from tetweave_codec.errors import ContainerError
+from tetweave_codec.geometry.sh import SH_DEGREE_MAX, SH_DEGREE_NONE, num_coeffs
+
+from . import attributes, octree
+from . import quantize as Q
+
+MAGIC = b"\x89TWV\r\n\x1a\n"
+VERSION = 2
+FIXED_FORMAT = "<8sHBbBI4df"
+FIXED_SIZE = struct.calcsize(FIXED_FORMAT)  # 53
+CHECKSUM_SIZE = 4
+FLAG_QHULL = 1 << 0
+KNOWN_FLAGS = FLAG_QHULL
+MAX_POINTS = 2**22  # format limit: entropy-coded points have no minimum size, so N bounds every allocation
+SECTIONS = ("positions", "s", "c")
+
+assert FIXED_SIZE == 53
+
+
+def header_size(sh_degree: int) -> int:
+    """Header bytes for an SH degree: 53 + 4 (d + 1) + 12."""
+    return FIXED_SIZE + 4 * (sh_degree + 1) + 4 * len(SECTIONS)
+
+
+@dataclass(frozen=True, eq=False)
+class TetWeaveFileV2:
+    """Contents of a version-2 `.tw` file: integer symbols plus the quantizer parameters.
+
+    cells: (N, 3) int64 position cells in [0, 2**position_bits), unique, canonical order (`pack_v2` sorts).
+    s_sym: (N,) int64 s symbols (`quantize.quantize_s`), same order.
+    c_sym: (N, q) int64 c symbols (`quantize.quantize_c`), q = num_coeffs(sh_degree).
+    position_bits: b in 6..16. s_step: float (stored as float32). c_band_steps: d + 1 floats (float32).
+    sh_degree: -1..3. scale, offset: ``original = normalized * scale + offset``. flags: bit 0 = Qhull.
+    sizes: byte size of each part of the file it was read from ("header", "positions", "s", "c",
+    "checksum"), or None for a file built in memory.
+
+    `points`, `s`, `c` are the dequantized float64 arrays (what the decoder triangulates).
+    """
+
+    cells: np.ndarray
+    s_sym: np.ndarray
+    c_sym: np.ndarray
+    position_bits: int
+    s_step: float
+    c_band_steps: tuple
+    sh_degree: int
+    scale: float
+    offset: np.ndarray
+    flags: int = 0
+    sizes: dict | None = field(default=None, compare=False)
+
+    version = VERSION
+
+    @property
+    def num_points(self) -> int:
+        return int(self.cells.shape[0])
+
+    @property
+    def backend(self) -> str:
+        return "qhull" if self.flags & FLAG_QHULL else "tetgen"
+
+    @cached_property
+    def points(self) -> np.ndarray:
+        return Q.dequantize_positions(self.cells, self.position_bits)
+
+    @cached_property
+    def s(self) -> np.ndarray:
+        return Q.dequantize_s(self.s_sym, self.s_step)
+
+    @cached_property
+    def c(self) -> np.ndarray:
+        return Q.dequantize_c(self.c_sym, self.c_steps).reshape(self.num_points, num_coeffs(self.sh_degree))
+
+    @property
+    def c_steps(self) -> np.ndarray:
+        """Per-coefficient steps (q,) float64."""
+        return Q.c_steps(self.sh_degree, self.c_band_steps)
+
+
+def quantize_file(
+    points,
+    s,
+    c,
+    sh_degree: int,
+    *,
+    position_bits: int,
+    s_step: float,
+    c_band_steps,
+    scale: float = 1.0,
+    offset=(0.0, 0.0, 0.0),
+    flags: int = 0,
+) -> tuple[TetWeaveFileV2, np.ndarray]:
+    """Quantize float arrays into a TetWeaveFileV2 (collisions merged, first occurrence wins; canonical order).
+
+    Returns (file, kept): ``kept`` (M,) int64 are the input indices of the stored points, in file order.
+    """
+    degree = int(sh_degree)
+    q = num_coeffs(degree)
+    cells, kept = Q.merge_collisions(Q.quantize_positions(points, position_bits))
+    s_sym = Q.quantize_s(np.asarray(s, dtype=np.float64).reshape(-1)[kept], s_step)
+    if q:
+        c_arr = np.asarray(c, dtype=np.float64).reshape(-1, q)[kept]
+        c_sym = Q.quantize_c(c_arr, Q.c_steps(degree, c_band_steps))
+    else:
+        c_sym = np.zeros((len(kept), 0), dtype=np.int64)
+    steps = tuple(Q.stored_step(x) for x in np.asarray(c_band_steps, dtype=np.float64).reshape(-1))
+    f = TetWeaveFileV2(
+        cells, s_sym, c_sym, int(position_bits), Q.stored_step(s_step), steps, degree, float(scale),
+        np.asarray(offset, dtype=np.float64), int(flags),
+    )  # fmt: skip
+    return f, kept
+
+
+# -----------------------------------------------------------------------------------------------------------
+# writing
+
+
+def pack_v2(f: TetWeaveFileV2) -> bytes:
+    """Serialize a TetWeaveFileV2. Points are sorted into canonical order here (with their s and c);
+    duplicate cells raise ValueError (merge them first: `quantize.merge_collisions` or `quantize_file`).
+    Raises ValueError on inconsistent contents."""
+    degree = int(f.sh_degree)
+    if not SH_DEGREE_NONE <= degree <= SH_DEGREE_MAX:
+        raise ValueError(f"sh_degree must be in {SH_DEGREE_NONE}..{SH_DEGREE_MAX}, got {degree}")
+    q = num_coeffs(degree)
+    bits = Q.check_bits(f.position_bits)
+    cells = np.asarray(f.cells, dtype=np.int64)
+    if cells.ndim != 2 or cells.shape[1] != 3:
+        raise ValueError(f"cells must be (N, 3), got {cells.shape}")
+    n = len(cells)
+    if n > MAX_POINTS:
+        raise ValueError(f"at most {MAX_POINTS} points fit a version-2 .tw file")
+    s_sym = np.asarray(f.s_sym, dtype=np.int64)
+    c_sym = np.asarray(f.c_sym, dtype=np.int64).reshape(n, -1) if q else np.zeros((n, 0), np.int64)
+    if s_sym.shape != (n,):
+        raise ValueError(f"s_sym must be ({n},), got {s_sym.shape}")
+    if c_sym.shape != (n, q):
+        raise ValueError(f"c_sym must be ({n}, {q}) for SH degree {degree}, got {c_sym.shape}")
+    if n and (cells.min() < 0 or cells.max() >= (1 << bits)):
+        raise ValueError(f"cells must lie in [0, {(1 << bits) - 1}] for {bits} position bits")
+    order = Q.canonical_order(cells)
+    cells, s_sym, c_sym = cells[order], s_sym[order], c_sym[order]
+    keys = Q.morton_keys(cells)
+    if n > 1 and np.any(keys[1:] == keys[:-1]):
+        raise ValueError("duplicate cells: merge them first (quantize.merge_collisions)")
+    s_step = Q.stored_step(f.s_step)
+    band_steps = [Q.stored_step(x) for x in np.asarray(f.c_band_steps, dtype=np.float64).reshape(-1)]
+    if len(band_steps) != degree + 1:
+        raise ValueError(f"need {degree + 1} c band steps for SH degree {degree}, got {len(band_steps)}")
+    scale = float(f.scale)
+    offset = np.asarray(f.offset, dtype=np.float64).reshape(-1)
+    if not (np.isfinite(scale) and scale > 0):
+        raise ValueError(f"scale must be finite and > 0, got {scale}")
+    if offset.shape != (3,) or not np.isfinite(offset).all():
+        raise ValueError("offset must be 3 finite numbers")
+    flags = int(f.flags)
+    if flags & ~KNOWN_FLAGS or flags < 0:
+        raise ValueError(f"unknown flags 0x{flags:x}")
+    models, words = octree.encode(cells, bits)
+    sections = (models + words, attributes.encode_s(s_sym), attributes.encode_c(c_sym, degree) if n else b"")
+    header = struct.pack(FIXED_FORMAT, MAGIC, VERSION, flags, degree, bits, n, scale, *offset, s_step)
+    header += struct.pack(f"<{degree + 1}f", *band_steps) + struct.pack("<3I", *(len(x) for x in sections))
+    body = header + b"".join(sections)
+    return body + struct.pack("<I", zlib.crc32(body))
+
+
+# -----------------------------------------------------------------------------------------------------------
+# reading
+
+
+def unpack_v2(buf: bytes) -> TetWeaveFileV2:
+    """Parse and validate a version-2 file (magic and version already checked). Raises ContainerError only."""
+    size = len(buf)
+    if size < header_size(SH_DEGREE_NONE) + CHECKSUM_SIZE:
+        raise ContainerError(f"truncated .tw file: {size} bytes, a version-2 header needs at least 69")
+    (_, _, flags, degree, bits, n, scale, ox, oy, oz, s_step) = struct.unpack_from(FIXED_FORMAT, buf, 0)
+    if not SH_DEGREE_NONE <= degree <= SH_DEGREE_MAX:
+        raise ContainerError(f"invalid .tw header: SH degree {degree} (expected {SH_DEGREE_NONE}..{SH_DEGREE_MAX})")
+    hsize = header_size(degree)
+    if size < hsize + CHECKSUM_SIZE:
+        raise ContainerError(f"truncated .tw file: {size} bytes, the header alone needs {hsize}")
+    band_steps = struct.unpack_from(f"<{degree + 1}f", buf, FIXED_SIZE)
+    section_sizes = struct.unpack_from("<3I", buf, hsize - 12)
+    expected = hsize + sum(section_sizes) + CHECKSUM_SIZE
+    if size < expected:
+        raise ContainerError(f"truncated .tw file: {size} bytes, the header announces {expected}")
+    if size > expected:
+        raise ContainerError(f"corrupted .tw file: {size - expected} unexpected bytes after the checksum")
+    (stored_crc,) = struct.unpack_from("<I", buf, size - CHECKSUM_SIZE)
+    if zlib.crc32(memoryview(buf)[: size - CHECKSUM_SIZE]) != stored_crc:
+        raise ContainerError("corrupted .tw file: checksum mismatch")
+    # Behind a valid checksum: the remaining checks catch files written wrongly (or forged) rather than damaged.
+    if flags & ~KNOWN_FLAGS:
+        raise ContainerError(f"invalid .tw header: unknown flags 0x{flags & ~KNOWN_FLAGS:x}")
+    if not Q.POSITION_BITS_MIN <= bits <= Q.POSITION_BITS_MAX:
+        raise ContainerError(
+            f"invalid .tw header: {bits} position bits (expected {Q.POSITION_BITS_MIN}..{Q.POSITION_BITS_MAX})"
+        )
+    if n > MAX_POINTS:
+        raise ContainerError(f"invalid .tw header: {n} points (a version-2 file holds at most {MAX_POINTS})")
+    if not (np.isfinite(scale) and scale > 0):
+        raise ContainerError(f"invalid .tw header: scale {scale} (must be finite and > 0)")
+    offset = np.array([ox, oy, oz], dtype=np.float64)
+    if not np.isfinite(offset).all():
+        raise ContainerError("invalid .tw header: non-finite offset")
+    for name, st in (("s step", s_step), *(("c step", x) for x in band_steps)):
+        if not (np.isfinite(st) and st >= Q.MIN_STEP):
+            raise ContainerError(f"invalid .tw header: {name} {st} (must be a finite, normal float32 > 0)")
+    q = num_coeffs(int(degree))
+    if n == 0 and any(section_sizes):
+        raise ContainerError("invalid .tw header: sections for zero points")
+    if n and q == 0 and section_sizes[2]:
+        raise ContainerError("invalid .tw header: a c section without SH coefficients")
+    starts = np.cumsum((hsize, *section_sizes))
+    sec = [buf[int(starts[i]) : int(starts[i + 1])] for i in range(3)]
+    model_bytes = bits * octree.MODEL_BYTES_PER_LEVEL if n else 0
+    if len(sec[0]) < model_bytes:
+        raise ContainerError("invalid .tw payload: the positions section is shorter than its models")
+    cells = octree.decode(sec[0][:model_bytes], sec[0][model_bytes:], int(bits), int(n))
+    s_sym = attributes.decode_s(sec[1], int(n))
+    c_sym = attributes.decode_c(sec[2], int(n), int(degree))
+    sizes = {"header": hsize, **dict(zip(SECTIONS, section_sizes, strict=True)), "checksum": CHECKSUM_SIZE}
+    return TetWeaveFileV2(
+        cells, s_sym, c_sym, int(bits), float(s_step), tuple(float(x) for x in band_steps), int(degree),
+        float(scale), offset, int(flags), sizes,
+    )  # fmt: skip
