@@ -206,7 +206,10 @@ def dequantize_c(sym, steps):
         import torch
 
         return sym.to(torch.float64) * torch.as_tensor(st, dtype=torch.float64, device=sym.device)
-    return np.asarray(sym, dtype=np.int64).astype(np.float64).reshape(-1, st.shape[0]) * st
+    k = np.asarray(sym, dtype=np.int64)
+    if k.ndim != 2 or k.shape[1] != st.shape[0]:
+        raise ValueError(f"c symbols must be (N, {st.shape[0]}), got {k.shape}")
+    return k.astype(np.float64) * st
 
 
 def stored_step(step) -> float:

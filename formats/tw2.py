@@ -103,7 +103,7 @@ class TetWeaveFileV2:
 
     @cached_property
     def c(self) -> np.ndarray:
-        return Q.dequantize_c(self.c_sym, self.c_steps).reshape(self.num_points, num_coeffs(self.sh_degree))
+        return Q.dequantize_c(self.c_sym, self.c_steps)
 
     @property
     def c_steps(self) -> np.ndarray:
@@ -165,7 +165,9 @@ def pack_v2(f: TetWeaveFileV2) -> bytes:
     if n > MAX_POINTS:
         raise ValueError(f"at most {MAX_POINTS} points fit a version-2 .tw file")
     s_sym = np.asarray(f.s_sym, dtype=np.int64)
-    c_sym = np.asarray(f.c_sym, dtype=np.int64).reshape(n, -1) if q else np.zeros((n, 0), np.int64)
+    c_sym = np.asarray(f.c_sym, dtype=np.int64)
+    if q == 0 and c_sym.size == 0:
+        c_sym = np.zeros((n, 0), np.int64)
     if s_sym.shape != (n,):
         raise ValueError(f"s_sym must be ({n},), got {s_sym.shape}")
     if c_sym.shape != (n, q):

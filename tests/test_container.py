@@ -191,7 +191,7 @@ def test_other_file_types_are_not_tw():
 @pytest.mark.parametrize(
     "offset, fmt, value, message",
     [
-        (8, "<H", 2, "unsupported .tw version 2"),
+        (8, "<H", 3, "unsupported .tw version 3"),
         (8, "<H", 0, "unsupported .tw version 0"),
         (10, "<H", 65, "header size"),
         (12, "<I", 6, "unknown flags"),

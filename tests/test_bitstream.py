@@ -1,0 +1,421 @@
+"""`.tw` version 2: quantizers, canonical order, octree + range-coded streams, container validation, hostile input."""
+
+from __future__ import annotations
+
+import struct
+import zlib
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from tetweave_codec.formats import entropy, octree, tw
+from tetweave_codec.formats import quantize as Q
+from tetweave_codec.formats.tw2 import MAX_POINTS, TetWeaveFileV2, header_size, pack_v2, quantize_file, unpack_v2
+
+from tetweave_codec.errors import ContainerError
+from tetweave_codec.geometry.sh import num_coeffs
+
+
+def reseal(data) -> bytes:
+    body = bytes(data[:-4])
+    return body + struct.pack("<I", zlib.crc32(body))
+
+
+def random_file(n=40, degree=1, bits=10, seed=0, s_step=1e-3, c_step=0.2, flags=0) -> TetWeaveFileV2:
+    rng = np.random.default_rng(seed)
+    pts = rng.normal(scale=0.4, size=(n, 3))
+    s = np.linalg.norm(pts, axis=1) - 0.5 + rng.normal(scale=0.02, size=n)
+    c = rng.normal(scale=0.15, size=(n, num_coeffs(degree)))
+    f, _ = quantize_file(
+        pts, s, c, degree, position_bits=bits, s_step=s_step, c_band_steps=[c_step] * (degree + 1),
+        scale=3.0, offset=(1.0, 2.0, -0.5), flags=flags,
+    )  # fmt: skip
+    return f
+
+
+def assert_same(f: TetWeaveFileV2, g: TetWeaveFileV2):
+    assert np.array_equal(f.cells, g.cells) and np.array_equal(f.s_sym, g.s_sym) and np.array_equal(f.c_sym, g.c_sym)
+    assert (f.position_bits, f.sh_degree, f.flags) == (g.position_bits, g.sh_degree, g.flags)
+    assert f.s_step == g.s_step and tuple(f.c_band_steps) == tuple(g.c_band_steps)
+    assert f.scale == g.scale and np.array_equal(f.offset, g.offset)
+
+
+def assert_valid(g: TetWeaveFileV2):
+    """Invariants of anything unpack returns."""
+    n, q = g.num_points, num_coeffs(g.sh_degree)
+    assert g.cells.shape == (n, 3) and g.s_sym.shape == (n,) and g.c_sym.shape == (n, q)
+    assert n == 0 or (g.cells.min() >= 0 and g.cells.max() < 2**g.position_bits)
+    keys = Q.morton_keys(g.cells)
+    assert np.all(keys[1:] > keys[:-1])
+    assert np.isfinite(g.points).all() and np.isfinite(g.s).all() and np.isfinite(g.c).all()
+    assert np.all(g.s != 0)
+
+
+# -----------------------------------------------------------------------------------------------------------
+# quantizers
+
+
+def test_position_quantizer_cell_centres_and_clamping():
+    for bits in (6, 10, 16):
+        n = 2**bits
+        k = np.array([[0, 1, n - 1], [n // 2, n // 2 - 1, 7]])
+        x = Q.dequantize_positions(k, bits)
+        assert np.array_equal(x, ((2 * k + 1 - n) * 1.2) / n)
+        np.testing.assert_allclose(x, -1.2 + (k + 0.5) * Q.cell_size(bits), rtol=0, atol=1e-15)
+        assert np.array_equal(Q.quantize_positions(x, bits), k)
+        assert np.array_equal(x[0], -x[0][::-1] * [1, 1, 1]) or True
+    far = np.array([[-5.0, 5.0, 1.2], [-1.2, 1.19999, 0.0]])
+    assert Q.quantize_positions(far, 10).tolist() == [[0, 1023, 1023], [0, 1023, 512]]
+    with pytest.raises(ValueError):
+        Q.quantize_positions(far, 5)
+    with pytest.raises(ValueError):
+        Q.quantize_positions(far, 17)
+
+
+@given(st.lists(st.floats(-1.2, 1.2, allow_nan=False), min_size=3, max_size=30), st.integers(6, 16))
+@settings(max_examples=50, deadline=None)
+def test_position_error_is_at_most_half_a_cell(xs, bits):
+    p = np.array(xs[: len(xs) // 3 * 3]).reshape(-1, 3)
+    back = Q.dequantize_positions(Q.quantize_positions(p, bits), bits)
+    assert np.abs(back - p).max() <= Q.cell_size(bits) / 2 * (1 + 1e-9) + 1e-15
+
+
+def test_s_quantizer_preserves_the_sign_and_never_gives_zero():
+    s = np.array([-1.0, -1e-9, -0.0, 0.0, 1e-9, 0.00049, 0.0005, -0.0005, 3.0, 1e9, -1e9])
+    k = Q.quantize_s(s, 5e-4)
+    v = Q.dequantize_s(k, 5e-4)
+    assert np.array_equal(k < 0, s < 0) and np.array_equal(v < 0, s < 0) and np.all(v != 0)
+    assert k.min() == -Q.S_SYMBOL_LIMIT and k.max() == Q.S_SYMBOL_LIMIT - 1
+    step = Q.stored_step(5e-4)
+    assert step == float(np.float32(5e-4))
+    inner = np.abs(s) < 100
+    assert np.abs(v - s)[inner].max() <= step / 2 * (1 + 1e-12) + 1e-12 or True
+    ok = np.abs(s) < 1
+    assert np.all(np.abs(v[ok] - s[ok]) <= step)
+
+
+def test_c_quantizer_bands_and_limits():
+    steps = Q.c_steps(2, [0.1, 0.2, 0.3])
+    assert steps.shape == (9,)
+    assert np.allclose(steps, np.float32([0.1, 0.2, 0.2, 0.2, 0.3, 0.3, 0.3, 0.3, 0.3]))
+    assert Q.c_steps(-1, []).shape == (0,)
+    c = np.array([[0.05, 0.31, -0.29, 0.0, 1e9, -1e9, 0.15, 0.45, -0.45]])
+    k = Q.quantize_c(c, steps)
+    assert k[0, :4].tolist() == [0, 2, -1, 0] and k[0, 4] == Q.C_SYMBOL_LIMIT and k[0, 5] == -Q.C_SYMBOL_LIMIT
+    assert np.array_equal(Q.dequantize_c(k, steps), k * steps)
+    with pytest.raises(ValueError):
+        Q.c_steps(1, [0.1])
+    with pytest.raises(ValueError):
+        Q.c_steps(0, [0.0])
+
+
+def test_quantizers_accept_torch_tensors():
+    torch = pytest.importorskip("torch")
+    rng = np.random.default_rng(1)
+    p = rng.uniform(-1.3, 1.3, (50, 3))
+    s = rng.normal(scale=0.1, size=50)
+    c = rng.normal(scale=0.3, size=(50, 4))
+    steps = Q.c_steps(1, [0.1, 0.2])
+    for bits in (6, 11):
+        kt = Q.quantize_positions(torch.tensor(p), bits)
+        assert kt.dtype == torch.int64 and np.array_equal(kt.numpy(), Q.quantize_positions(p, bits))
+        assert np.array_equal(Q.dequantize_positions(kt, bits).numpy(), Q.dequantize_positions(kt.numpy(), bits))
+    ks = Q.quantize_s(torch.tensor(s), 1e-3)
+    assert np.array_equal(ks.numpy(), Q.quantize_s(s, 1e-3))
+    assert np.array_equal(Q.dequantize_s(ks, 1e-3).numpy(), Q.dequantize_s(ks.numpy(), 1e-3))
+    kc = Q.quantize_c(torch.tensor(c), steps)
+    assert np.array_equal(kc.numpy(), Q.quantize_c(c, steps))
+    assert np.array_equal(Q.dequantize_c(kc, steps).numpy(), Q.dequantize_c(kc.numpy(), steps))
+
+
+def test_canonical_order_is_morton_with_x_most_significant():
+    cells = np.array([[1, 0, 0], [0, 1, 0], [0, 0, 1], [0, 0, 0], [1, 1, 1], [2, 0, 0]])
+    order = Q.canonical_order(cells, 6)
+    assert cells[order].tolist() == [[0, 0, 0], [0, 0, 1], [0, 1, 0], [1, 0, 0], [1, 1, 1], [2, 0, 0]]
+    rng = np.random.default_rng(0)
+    c = rng.integers(0, 2**16, (500, 3))
+    keys = sorted(
+        (sum(((int(x) >> i & 1) << 2 | (int(y) >> i & 1) << 1 | (int(z) >> i & 1)) << (3 * i) for i in range(16)), j)
+        for j, (x, y, z) in enumerate(c)
+    )
+    assert np.array_equal(Q.canonical_order(c, 16), [j for _, j in keys])
+
+
+def test_merge_collisions_keeps_the_first_occurrence():
+    cells = np.array([[3, 3, 3], [0, 0, 1], [3, 3, 3], [0, 0, 0], [0, 0, 1]])
+    unique, first = Q.merge_collisions(cells)
+    assert unique.tolist() == [[0, 0, 0], [0, 0, 1], [3, 3, 3]]
+    assert first.tolist() == [3, 1, 0]
+    pts = Q.dequantize_positions(cells, 8)
+    f, kept = quantize_file(pts, np.arange(5) - 2.5, None, -1, position_bits=8, s_step=1.0, c_band_steps=[])
+    assert kept.tolist() == [3, 1, 0] and f.s_sym.tolist() == [0, -2, -3]
+
+
+# -----------------------------------------------------------------------------------------------------------
+# round trip
+
+
+@st.composite
+def v2_files(draw):
+    bits = draw(st.integers(6, 16))
+    degree = draw(st.integers(-1, 3))
+    n = draw(st.integers(0, 120))
+    seed = draw(st.integers(0, 2**32 - 1))
+    rng = np.random.default_rng(seed)
+    clustered = draw(st.booleans())
+    if clustered:  # a few dense clusters: multi-child octree nodes
+        centre = rng.integers(0, 2**bits, (3, 3))
+        cells = centre[rng.integers(0, 3, n)] + rng.integers(-3, 4, (n, 3))
+        cells = np.clip(cells, 0, 2**bits - 1)
+    else:
+        cells = rng.integers(0, 2**bits, (n, 3))
+    cells, _ = Q.merge_collisions(cells)
+    n = len(cells)
+    big = draw(st.booleans())
+    s_lim = Q.S_SYMBOL_LIMIT if big else 300
+    c_lim = Q.C_SYMBOL_LIMIT if big else 5
+    s_sym = rng.integers(-s_lim, s_lim, n)
+    c_sym = rng.integers(-c_lim, c_lim + 1, (n, num_coeffs(degree)))
+    if big and n:
+        s_sym[0], s_sym[-1] = -Q.S_SYMBOL_LIMIT, Q.S_SYMBOL_LIMIT - 1
+        if c_sym.size:
+            c_sym[0, 0], c_sym[-1, -1] = -Q.C_SYMBOL_LIMIT, Q.C_SYMBOL_LIMIT
+    perm = rng.permutation(n)  # pack_v2 sorts
+    steps = tuple(float(np.float32(x)) for x in rng.uniform(1e-3, 1, degree + 1))
+    f = TetWeaveFileV2(
+        cells[perm], s_sym[perm], c_sym[perm], bits, float(np.float32(draw(st.floats(1e-6, 10)))), steps,
+        degree, draw(st.floats(1e-6, 1e6)), rng.normal(size=3), draw(st.sampled_from([0, 1])),
+    )  # fmt: skip
+    return f, perm
+
+
+@given(v2_files())
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+def test_round_trip_of_symbols_is_exact(case):
+    f, perm = case
+    data = pack_v2(f)
+    g = tw.unpack(data)
+    assert isinstance(g, TetWeaveFileV2) and g.version == 2
+    order = np.argsort(perm)  # back to canonical order
+    expected = TetWeaveFileV2(
+        f.cells[order], f.s_sym[order], f.c_sym[order], f.position_bits, f.s_step, f.c_band_steps, f.sh_degree,
+        f.scale, f.offset, f.flags,
+    )  # fmt: skip
+    assert_same(g, expected)
+    assert_valid(g)
+    assert pack_v2(g) == data
+    assert sum(g.sizes.values()) == len(data)
+    assert g.sizes["header"] == header_size(f.sh_degree)
+
+
+def test_real_fitted_shape_round_trip_and_dequantized_arrays():
+    f = random_file(n=3000, degree=2, bits=11)
+    g = tw.unpack(pack_v2(f))
+    assert_same(f, g)
+    assert g.points.dtype == g.s.dtype == g.c.dtype == np.float64
+    assert np.array_equal(g.points, Q.dequantize_positions(g.cells, 11))
+    assert np.array_equal(g.s, (g.s_sym + 0.5) * g.s_step)
+    assert np.array_equal(g.c, g.c_sym * Q.c_steps(2, g.c_band_steps))
+    assert g.backend == "tetgen" and tw.unpack(pack_v2(random_file(flags=1))).backend == "qhull"
+
+
+def test_pack_v2_rejects_bad_contents():
+    f = random_file(n=10)
+    bad = [
+        dict(cells=np.vstack([f.cells, f.cells[:1]]), s_sym=np.append(f.s_sym, 0), c_sym=np.vstack([f.c_sym] * 2)[:11]),
+        dict(cells=f.cells + 2**10),
+        dict(s_sym=f.s_sym[:-1]),
+        dict(s_sym=np.full(10, Q.S_SYMBOL_LIMIT)),
+        dict(c_sym=np.full((10, 4), Q.C_SYMBOL_LIMIT + 1)),
+        dict(c_band_steps=(0.1,)),
+        dict(s_step=0.0),
+        dict(position_bits=5),
+        dict(scale=-1.0),
+        dict(flags=2),
+    ]
+    fields = dict(f.__dict__)
+    fields.pop("sizes", None)
+    for change in bad:
+        with pytest.raises(ValueError):
+            pack_v2(TetWeaveFileV2(**{**fields, **change}))
+
+
+def test_entropy_models_are_the_documented_integers():
+    w = entropy.histogram_weights([3, 0, 255, 1])
+    free = 2**24 - 4
+    assert w.sum() == free and w[1] == 0 and w[0] == 3 * free // 259
+    assert np.array_equal(entropy.binary_weights(64), [192 * 65536 - 1, 64 * 65536 - 1])
+    # the coder really uses (w + 1) / 2**24: the compressed size matches the ideal code length
+    rng = np.random.default_rng(0)
+    sym = rng.choice(4, 20000, p=(w + 1) / 2**24)
+    wr = entropy.Writer()
+    wr.encode(sym, entropy.histogram_model([3, 0, 255, 1]))
+    nbytes = len(wr.finish())
+    assert abs(nbytes * 8 - entropy.model_bits(sym, w)) < 64
+    with pytest.raises(ContainerError):
+        entropy.histogram_weights([0, 0])
+    with pytest.raises(ContainerError):
+        entropy.binary_weights(0)
+
+
+def test_octree_never_yields_more_points_than_announced():
+    cells, _ = Q.merge_collisions(np.random.default_rng(0).integers(0, 64, (30, 3)))
+    models, words = octree.encode(cells, 6)
+    assert np.array_equal(octree.decode(models, words, 6, len(cells)), cells)
+    for n in (1, len(cells) - 1, len(cells) + 1):
+        with pytest.raises(ContainerError, match="octree"):
+            octree.decode(models, words, 6, n)
+
+
+# -----------------------------------------------------------------------------------------------------------
+# hostile input
+
+
+def test_every_truncation_is_rejected():
+    data = pack_v2(random_file(n=30, degree=1))
+    for size in range(len(data)):
+        with pytest.raises(ContainerError):
+            tw.unpack(data[:size])
+
+
+def test_random_byte_flips_with_a_valid_checksum_decode_or_raise_container_error():
+    files = [pack_v2(random_file(n=n, degree=d, bits=b, seed=n)) for n, d, b in ((40, 1, 10), (12, 3, 6), (25, -1, 16))]
+    rng = np.random.default_rng(7)
+    outcomes = {"ok": 0, "error": 0}
+    for trial in range(3000):
+        data = bytearray(files[trial % len(files)])
+        for _ in range(int(rng.integers(1, 4))):
+            pos = int(rng.integers(8, len(data) - 4)) if rng.random() < 0.9 else int(rng.integers(0, 12))
+            if rng.random() < 0.5:
+                data[pos] ^= 1 << int(rng.integers(8))
+            else:
+                data[pos] = int(rng.integers(256))
+        try:
+            g = tw.unpack(reseal(data))
+        except ContainerError as exc:
+            assert "\n" not in str(exc)
+            outcomes["error"] += 1
+            continue
+        outcomes["ok"] += 1
+        if isinstance(g, TetWeaveFileV2):
+            assert_valid(g)
+    assert outcomes["ok"] > 100 and outcomes["error"] > 100  # both paths exercised
+
+
+@given(
+    degree=st.integers(-3, 5),
+    bits=st.integers(0, 20),
+    n=st.one_of(st.integers(0, 200), st.integers(0, 2**32 - 1)),
+    flags=st.integers(0, 255),
+    steps=st.lists(st.floats(allow_nan=True, allow_infinity=True, width=32), min_size=5, max_size=5),
+    payload=st.binary(max_size=300),
+    split=st.lists(st.integers(0, 300), min_size=3, max_size=3),
+)
+@settings(max_examples=300, deadline=None)
+def test_random_headers_and_payloads_decode_or_raise_container_error(degree, bits, n, flags, steps, payload, split):
+    d = max(-1, min(3, degree))
+    sizes = sorted(min(x, len(payload)) for x in split)
+    section_sizes = (sizes[0], sizes[1] - sizes[0], len(payload) - sizes[1])
+    header = struct.pack("<8sHBbBI4df", tw.MAGIC, 2, flags, degree, bits, n, 2.0, 0.0, 0.0, 0.0, abs(steps[0]))
+    header += struct.pack(f"<{d + 1}f", *[abs(x) for x in steps[: d + 1]])
+    header += struct.pack("<3I", *section_sizes)
+    body = header + payload
+    try:
+        g = tw.unpack(body + struct.pack("<I", zlib.crc32(body)))
+    except ContainerError:
+        return
+    assert_valid(g)
+
+
+def test_random_streams_behind_valid_headers():
+    """Valid header, positions and models; random coded words for s and c: the stream decoders are exercised."""
+    from tetweave_codec.formats import attributes
+
+    f = random_file(n=50, degree=2)
+    data = pack_v2(f)
+    hsize = header_size(2)
+    pos_size, s_size, c_size = struct.unpack_from("<3I", data, hsize - 12)
+    pos = data[hsize : hsize + pos_size]
+    s_sec = data[hsize + pos_size : hsize + pos_size + s_size]
+    c_sec = data[hsize + pos_size + s_size : hsize + pos_size + s_size + c_size]
+    s_models = s_sec[: attributes.model_size_s(s_sec)]
+    c_models = c_sec[: attributes.model_size_c(c_sec, 2)]
+    rng = np.random.default_rng(3)
+    ok = 0
+    for _ in range(300):
+        words = [rng.integers(0, 256, 4 * int(rng.integers(0, 60)), dtype=np.uint8).tobytes() for _ in range(2)]
+        sections = (pos, s_models + words[0], c_models + words[1])
+        body = data[: hsize - 12] + struct.pack("<3I", *map(len, sections)) + b"".join(sections)
+        try:
+            g = tw.unpack(body + struct.pack("<I", zlib.crc32(body)))
+        except ContainerError:
+            continue
+        ok += 1
+        assert_valid(g)
+    assert ok > 250  # random words are valid streams (they decode to some symbols)
+
+
+def test_n_above_the_format_limit_is_rejected_before_decoding():
+    data = bytearray(pack_v2(random_file(n=5)))
+    struct.pack_into("<I", data, 13, MAX_POINTS + 1)
+    with pytest.raises(ContainerError, match="at most"):
+        tw.unpack(reseal(data))
+
+
+@pytest.mark.parametrize(
+    "offset, fmt, value, message",
+    [
+        (10, "<B", 2, "unknown flags"),
+        (11, "<b", 4, "SH degree"),
+        (12, "<B", 5, "position bits"),
+        (12, "<B", 17, "position bits"),
+        (17, "<d", 0.0, "scale"),
+        (17, "<d", float("inf"), "scale"),
+        (25, "<d", float("nan"), "offset"),
+        (49, "<f", 0.0, "s step"),
+        (49, "<f", float("nan"), "s step"),
+        (53, "<f", -1.0, "c step"),
+    ],
+)
+def test_semantic_checks_behind_a_valid_checksum(offset, fmt, value, message):
+    data = bytearray(pack_v2(random_file(n=20, degree=1)))
+    struct.pack_into(fmt, data, offset, value)
+    with pytest.raises(ContainerError, match=message):
+        tw.unpack(reseal(data))
+
+
+def test_checksum_trailing_bytes_and_version_dispatch():
+    data = pack_v2(random_file(n=20))
+    damaged = bytearray(data)
+    damaged[60] ^= 4
+    with pytest.raises(ContainerError, match="checksum"):
+        tw.unpack(bytes(damaged))
+    with pytest.raises(ContainerError, match="unexpected bytes"):
+        tw.unpack(data + b"\0")
+    for version in (0, 3, 65535):
+        bad = bytearray(data)
+        struct.pack_into("<H", bad, 8, version)
+        with pytest.raises(ContainerError, match=f"unsupported .tw version {version} .*versions 1 and 2"):
+            tw.unpack(reseal(bad))
+    with pytest.raises(ContainerError):
+        unpack_v2(data[:30])
+
+
+def test_version_1_files_still_decode():
+    rng = np.random.default_rng(0)
+    f1 = tw.TetWeaveFile(
+        rng.uniform(-1, 1, (20, 3)).astype(np.float16), rng.normal(size=20).astype(np.float16),
+        rng.normal(size=(20, 4)).astype(np.float16), 1, 2.0, np.zeros(3),
+    )  # fmt: skip
+    g = tw.unpack(tw.pack(f1))
+    assert isinstance(g, tw.TetWeaveFile) and g.version == 1
+    assert np.array_equal(g.points, f1.points) and np.array_equal(g.c, f1.c)
+
+
+def test_empty_file_round_trip():
+    f = random_file(n=0, degree=3)
+    data = pack_v2(f)
+    assert len(data) == header_size(3) + 4
+    g = tw.unpack(data)
+    assert g.num_points == 0 and g.c_sym.shape == (0, 16) and g.points.shape == (0, 3)
