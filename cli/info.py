@@ -16,6 +16,31 @@ def _box(lo: np.ndarray, hi: np.ndarray) -> str:
     return f"{fmt(lo)} .. {fmt(hi)}, size {fmt(hi - lo)}"
 
 
+def _v2_lines(file: Path, f, total: int, degree: str) -> list[tuple[str, str]]:
+    from tetweave_codec.formats import quantize
+
+    n = f.num_points
+    bpp = (lambda b: f"{8 * b / n:.2f} bits/point") if n else (lambda b: "-")
+    steps = ", ".join(f"l={band}: {x:.6g}" for band, x in enumerate(f.c_band_steps)) or "none"
+    lines = [
+        ("file", str(file)),
+        ("format", ".tw version 2 (quantized; octree + range-coded streams)"),
+        ("points", f"{n:,}"),
+        ("SH degree", degree),
+        ("flags", f"0x{f.flags:x} (Delaunay backend: {f.backend})"),
+        (
+            "quantization",
+            f"positions {f.position_bits} bits/axis (cell {quantize.cell_size(f.position_bits):.6g}), "
+            f"s step {f.s_step:.6g}, c steps {steps}",
+        ),
+        ("bytes", f"{total:,} total ({bpp(total)})"),
+    ]
+    for part in ("header", "positions", "s", "c", "checksum"):
+        size = f.sizes[part]
+        lines.append((f"  {part}", f"{size:,} ({bpp(size)})"))
+    return lines
+
+
 @click.command(context_settings={"show_default": True})
 @click.argument("file", type=click.Path(path_type=Path))
 @click.option("--mesh", is_flag=True, help="Also decode FILE and report the mesh: counts and exact bounding box.")
@@ -30,23 +55,24 @@ def info(file: Path, mesh: bool) -> None:
     data = read_tw_bytes(file)
     f = tw.unpack(data)
     n, q = f.num_points, (f.sh_degree + 1) ** 2
-    payload = len(data) - tw.HEADER_SIZE - tw.CHECKSUM_SIZE
-    lines = [
-        ("file", str(file)),
-        ("format", f".tw version {tw.VERSION}, payload codec {f.codec} (raw float16)"),
-        ("points", f"{n:,}"),
-        (
-            "SH degree",
-            "none (0 coefficients per point)" if f.sh_degree < 0 else f"{f.sh_degree} ({q} per point)",
-        ),
-        ("flags", f"0x{f.flags:x} (Delaunay backend: {f.backend})"),
-        (
-            "bytes",
-            f"{len(data):,} total = header {tw.HEADER_SIZE} + payload {payload:,} "
-            f"(positions {6 * n:,}, s {2 * n:,}, c {2 * n * q:,}) + checksum {tw.CHECKSUM_SIZE}",
-        ),
-        ("transform", f"original = normalized * {f.scale:.9g} + ({', '.join(f'{x:.9g}' for x in f.offset)})"),
-    ]
+    degree = "none (0 coefficients per point)" if f.sh_degree < 0 else f"{f.sh_degree} ({q} per point)"
+    if f.version == 2:
+        lines = _v2_lines(file, f, len(data), degree)
+    else:
+        payload = len(data) - tw.HEADER_SIZE - tw.CHECKSUM_SIZE
+        lines = [
+            ("file", str(file)),
+            ("format", f".tw version 1, payload codec {f.codec} (raw float16)"),
+            ("points", f"{n:,}"),
+            ("SH degree", degree),
+            ("flags", f"0x{f.flags:x} (Delaunay backend: {f.backend})"),
+            (
+                "bytes",
+                f"{len(data):,} total = header {tw.HEADER_SIZE} + payload {payload:,} "
+                f"(positions {6 * n:,}, s {2 * n:,}, c {2 * n * q:,}) + checksum {tw.CHECKSUM_SIZE}",
+            ),
+        ]
+    lines.append(("transform", f"original = normalized * {f.scale:.9g} + ({', '.join(f'{x:.9g}' for x in f.offset)})"))
     if n:
         pts = f.points.astype(np.float64) * f.scale + f.offset
         lines.append(("points box", _box(pts.min(0), pts.max(0))))

@@ -419,3 +419,28 @@ def test_empty_file_round_trip():
     assert len(data) == header_size(3) + 4
     g = tw.unpack(data)
     assert g.num_points == 0 and g.c_sym.shape == (0, 16) and g.points.shape == (0, 3)
+
+
+def test_decode_and_info_read_version_2(tmp_path):
+    from click.testing import CliRunner
+    from tetweave_codec.cli.info import info
+
+    from tetweave_codec.decoder import decode_detailed, mesh_from_points
+
+    rng = np.random.default_rng(0)
+    pts = rng.uniform(-1, 1, (1500, 3))
+    f, _ = quantize_file(
+        pts, np.linalg.norm(pts, axis=1) - 0.6, rng.normal(scale=0.1, size=(1500, 4)), 1, position_bits=10,
+        s_step=1e-3, c_band_steps=[0.1, 0.2], scale=2.0, offset=(1.0, 0.0, 0.0),
+    )  # fmt: skip
+    data = pack_v2(f)
+    res = decode_detailed(data)
+    v_ref, f_ref = mesh_from_points(f.points, f.s, f.c, 1, backend=res.backend)
+    assert len(res.faces) > 0 and np.array_equal(res.faces, f_ref)
+    np.testing.assert_allclose(res.vertices, v_ref * 2.0 + [1.0, 0.0, 0.0], rtol=0, atol=1e-12)
+    path = tmp_path / "x.tw"
+    path.write_bytes(data)
+    out = CliRunner().invoke(info, [str(path)])
+    assert out.exit_code == 0, out.output
+    for word in ("version 2", "10 bits/axis", "s step 0.001", "positions", "bits/point", "checksum    4"):
+        assert word in out.output

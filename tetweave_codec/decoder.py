@@ -30,7 +30,8 @@ class DecodeResult:
     """Output of `decode_detailed`.
 
     vertices: (V, 3) float64 in the input mesh's frame. faces: (F, 3) int64, outward.
-    container: the parsed file (formats.tw.TetWeaveFile).
+    container: the parsed file (formats.tw.TetWeaveFile for version 1, formats.tw2.TetWeaveFileV2 for version 2;
+        both expose `points`, `s`, `c`, which the decoder converts to float64 -- v2's are its dequantized values).
     backend: Delaunay backend actually used.
     seconds: wall time per stage: "unpack", "delaunay", "marching_tets".
     num_tets: size of the tetrahedralization.
