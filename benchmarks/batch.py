@@ -18,9 +18,11 @@ from pathlib import Path
 import numpy as np
 from tetweave_codec.benchmarks.methods import Method
 
-from tetweave_codec.metrics import MetricOptions, evaluate, mesh_report, prepare_reference
+from tetweave_codec.metrics.common import MetricOptions
+from tetweave_codec.metrics.fidelity import prepare_reference
+from tetweave_codec.metrics.summary import evaluate, mesh_report
 
-# Result columns in CSV order. Distances are in the input's normalized frame (see tetweave_codec.metrics).
+# Result columns in CSV order. Distances are in the input's normalized frame (see tetweave_codec.metrics.fidelity).
 ID_COLUMNS = ["mesh", "family", "curve", "setting"]
 PARAM_COLUMNS = ["quantization_bits", "keep_fraction", "points", "sh_degree", "points_stored"]
 SIZE_COLUMNS = ["bytes", "bits_per_vertex", "encode_s", "decode_s", "metrics_s"]

@@ -24,7 +24,7 @@ from tetweave_codec.cli.common import parse_count
 from tetweave_codec.fit.config import QUALITY, FitConfig, LearningRates, Weights
 from tetweave_codec.fit.loop import fit
 from tetweave_codec.meshio import load_mesh, normalize
-from tetweave_codec.metrics import chamfer_distance
+from tetweave_codec.metrics.fidelity import chamfer_distance
 
 DEFAULT_MESHES = Path(__file__).resolve().parent.parent.parent / "shared" / "meshes"
 STAGES = ("targets", "init", "main", "finalize", "late", "extract")

@@ -6,7 +6,7 @@ s = its signed distance) and ``initialize.random_state`` (the paper's ball of ra
 as in its reference code, and with a sphere guess s = |p| - 0.5),
 extract the mesh exactly as the decoder does (Delaunay + marching tets, ``decoder.mesh_from_points``) and
 report the time to build the state, the time to extract, the face count and the Chamfer distance to the
-input (``metrics.chamfer_distance``, normalized frame).
+input (``metrics.fidelity.chamfer_distance``, normalized frame).
 
     python -m tetweave_codec.benchmarks.init_compare [--points 4096,16384] [--meshes DIR | MESH ...]
 """
@@ -24,7 +24,7 @@ import numpy as np
 from tetweave_codec.decoder import mesh_from_points
 from tetweave_codec.fit.initialize import initial_state, random_state
 from tetweave_codec.meshio import load_mesh, normalize
-from tetweave_codec.metrics import chamfer_distance
+from tetweave_codec.metrics.fidelity import chamfer_distance
 
 DEFAULT_MESHES = Path(__file__).resolve().parent.parent.parent / "shared" / "meshes"
 MESH_SUFFIXES = (".ply", ".obj", ".stl", ".off", ".glb")

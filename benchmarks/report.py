@@ -1,11 +1,9 @@
 """Reports of `tetweave bench`: results.csv, summary.md, rate-distortion plots and side-by-side pictures.
 
-Matched-error verdict. Each family's settings give points (Chamfer distance, bytes). Its *front* is the Pareto
-subset (no other setting of the family is both smaller and more accurate), sorted by Chamfer distance. A
-family's size at an error e is read off its front by linear interpolation of log(bytes) against log(Chamfer);
-outside the front's Chamfer range it is unknown (never extrapolated). The verdict compares, at the Chamfer
-distance of each setting of the focus family (tetweave when present, else decimate+Draco), the sizes of all
-families.
+Matched-error verdict. Each family's settings give points (Chamfer distance, bytes); its Pareto front and the
+size on it at a given error come from `tetweave_codec.metrics.rate_distortion` (log-log interpolation, never
+extrapolated). The verdict compares, at the Chamfer distance of each setting of the focus family (tetweave when
+present, else decimate+Draco), the sizes of all families.
 """
 
 from __future__ import annotations
@@ -20,6 +18,7 @@ import numpy as np
 from tetweave_codec.benchmarks.batch import COLUMNS, INPUT_FAMILY, MeshResult
 
 from tetweave_codec.meshio import write_bytes_atomic
+from tetweave_codec.metrics.rate_distortion import bytes_at, pareto_front
 
 FOCUS_ORDER = ("tetweave", "decimate+draco", "draco")  # the family the verdict is about, first present wins
 PICTURE_FAMILIES = ("draco", "decimate+draco", "tetweave")
@@ -95,31 +94,6 @@ def rows_by_mesh(rows: Sequence[dict]) -> dict[str, list[dict]]:
 # ----------------------------------------------------------------------------------------------------------
 # Rate-distortion fronts and the matched-error verdict
 # ----------------------------------------------------------------------------------------------------------
-
-
-def pareto_front(points: Sequence[tuple[float, float]]) -> list[tuple[float, float]]:
-    """Non-dominated (error, bytes) points with error > 0, sorted by error (bytes then strictly decrease)."""
-    pts = sorted((e, b) for e, b in points if e > 0 and b > 0)
-    front: list[tuple[float, float]] = []
-    for e, b in pts:
-        if not front or b < front[-1][1]:
-            if front and e == front[-1][0]:
-                continue
-            front.append((e, b))
-    return front
-
-
-def bytes_at(front: Sequence[tuple[float, float]], error: float) -> float | None:
-    """Size on a front at `error`, log-log interpolated; None outside the front's error range."""
-    if not front or error <= 0:
-        return None
-    errors = np.log([e for e, _ in front])
-    sizes = np.log([b for _, b in front])
-    x = math.log(error)
-    tol = 1e-9
-    if x < errors[0] - tol or x > errors[-1] + tol:
-        return None
-    return float(math.exp(np.interp(x, errors, sizes)))
 
 
 def family_fronts(rows: Sequence[dict]) -> dict[str, list[tuple[float, float]]]:
@@ -235,7 +209,7 @@ area-weighted samples). HD: Hausdorff distance (samples and vertices). NC: norma
 at distance τ. ECD / EF1: edge Chamfer distance / edge F1 (crease samples, paper Appendix C). IN>5°: % samples
 whose normal is off by more than 5°. AR>4 / RR>4: % triangles with aspect ratio (longest edge / shortest
 altitude) / radius ratio (circumradius / inradius) above 4. SA<10°: % triangles with an angle below 10°. SI: %
-self-intersecting faces. Exact definitions: `tetweave_codec/metrics.py`. The input row gives the raw size
+self-intersecting faces. Exact definitions: `tetweave_codec/metrics/`. The input row gives the raw size
 (float32 xyz + uint32 indices) and the input's own triangle quality. bits/vertex: 8 × bytes / input vertices.
 Times are wall-clock seconds on the machine that ran the benchmark."""
 
@@ -435,7 +409,7 @@ def side_by_side(result: MeshResult, rows: Sequence[dict], path: str | Path, siz
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from tetweave_codec.metrics import normalization
+    from tetweave_codec.metrics.fidelity import normalization
 
     chosen = [r for r in comparable_rows(rows) if f"{r['family']} {r['setting']}" in result.decoded]
     if not chosen:

@@ -210,7 +210,7 @@ def bench(
     from tetweave_codec.benchmarks.batch import find_meshes, run_batch
     from tetweave_codec.benchmarks.methods import TetweaveMethod
 
-    from tetweave_codec.metrics import MetricOptions
+    from tetweave_codec.metrics.common import MetricOptions
 
     paths = find_meshes(mesh_dir)
     t_start = time.perf_counter()

@@ -24,7 +24,8 @@ from tetweave_codec.benchmarks.methods import Method, TetweaveMethod
 from tetweave_codec.cli.main import main
 
 from tetweave_codec.meshio import save_mesh
-from tetweave_codec.metrics import MetricOptions
+from tetweave_codec.metrics.common import MetricOptions
+from tetweave_codec.metrics.rate_distortion import bytes_at, pareto_front
 
 OPTIONS = MetricOptions.for_samples(10_000)
 
@@ -99,13 +100,13 @@ def test_decimation_keeps_about_the_requested_fraction():
 
 
 def test_pareto_front_and_log_log_interpolation():
-    front = report.pareto_front([(1.0, 100.0), (2.0, 50.0), (4.0, 25.0), (3.0, 80.0), (0.0, 5.0)])
+    front = pareto_front([(1.0, 100.0), (2.0, 50.0), (4.0, 25.0), (3.0, 80.0), (0.0, 5.0)])
     assert front == [(1.0, 100.0), (2.0, 50.0), (4.0, 25.0)]
     # bytes = 100 / error on this front: log-log interpolation is exact
-    assert report.bytes_at(front, math.sqrt(2)) == pytest.approx(100 / math.sqrt(2))
-    assert report.bytes_at(front, 3.0) == pytest.approx(100 / 3)
-    assert report.bytes_at(front, 4.0) == pytest.approx(25.0)
-    assert report.bytes_at(front, 0.5) is None and report.bytes_at(front, 5.0) is None
+    assert bytes_at(front, math.sqrt(2)) == pytest.approx(100 / math.sqrt(2))
+    assert bytes_at(front, 3.0) == pytest.approx(100 / 3)
+    assert bytes_at(front, 4.0) == pytest.approx(25.0)
+    assert bytes_at(front, 0.5) is None and bytes_at(front, 5.0) is None
 
 
 def _row(family, setting, chamfer, size, mesh="m"):

@@ -11,10 +11,16 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from tetweave_codec import metrics as M
+from tetweave_codec.geometry.triangles import sample_surface
+from tetweave_codec.metrics.common import MetricOptions
+from tetweave_codec.metrics.fidelity import chamfer_distance, fidelity, prepare_mesh, prepare_reference
+from tetweave_codec.metrics.intersections import self_intersecting_faces
+from tetweave_codec.metrics.manifold import topology
+from tetweave_codec.metrics.quality import triangle_quality
+from tetweave_codec.metrics.summary import evaluate, mesh_report
 
 # 20K samples are ~0.03 apart on a [-0.9, 0.9]^3 box: widen the crease search accordingly
-FAST = M.MetricOptions(n_samples=20_000, edge_radius=0.06)
+FAST = MetricOptions(n_samples=20_000, edge_radius=0.06)
 
 
 def _mesh(solid: manifold3d.Manifold) -> tuple[np.ndarray, np.ndarray]:
@@ -49,7 +55,7 @@ def square(n: int = 8, size: float = 2.0):
 
 def test_mesh_against_itself_is_perfect():
     v, f = box()
-    r = M.compare_meshes(v, f, v, f, FAST)
+    r = evaluate(prepare_reference(v, f, FAST), v, f, FAST)
     assert r["chamfer"] == pytest.approx(0.0, abs=1e-12)
     assert r["hausdorff"] == pytest.approx(0.0, abs=1e-12)
     assert r["f1@0.001"] == 1.0 and r["f1@0.005"] == 1.0
@@ -63,12 +69,12 @@ def test_mesh_against_itself_is_perfect():
 def test_sphere_against_scaled_sphere_is_the_radius_difference():
     v, f = sphere(1.0)
     # the same tessellation scaled about the centre: each face moves along its normal by 0.05 * its distance
-    cd = M.chamfer_distance(v, f, 1.05 * v, f, n_samples=20_000, normalize=False)
+    cd = chamfer_distance(v, f, 1.05 * v, f, n_samples=20_000, normalize=False)
     assert cd == pytest.approx(0.05, rel=0.01)
     # normalized: the first sphere's bbox (longest side ~2) becomes 1.8, so distances scale by 1.8 / side
     side = float((v.max(0) - v.min(0)).max())
-    assert M.chamfer_distance(v, f, 1.05 * v, f, n_samples=20_000) == pytest.approx(0.05 * 1.8 / side, rel=0.01)
-    r = M.compare_meshes(v, f, 1.05 * v, f, FAST)
+    assert chamfer_distance(v, f, 1.05 * v, f, n_samples=20_000) == pytest.approx(0.05 * 1.8 / side, rel=0.01)
+    r = evaluate(prepare_reference(v, f, FAST), 1.05 * v, f, FAST)
     assert r["hausdorff"] == pytest.approx(0.05 * 1.8 / side, rel=0.01)
     assert r["f1@0.001"] == 0.0 and r["f1@0.005"] == 0.0
 
@@ -77,29 +83,29 @@ def test_sphere_against_independent_tessellation():
     """A finer sphere of radius 1.02: the Chamfer is the radius gap up to the coarse mesh's chord error."""
     v, f = sphere(1.0, 96)
     v2, f2 = sphere(1.02, 128)
-    cd = M.chamfer_distance(v, f, v2, f2, n_samples=50_000, normalize=False)
+    cd = chamfer_distance(v, f, v2, f2, n_samples=50_000, normalize=False)
     assert 0.017 < cd < 0.023
 
 
 def test_chamfer_is_symmetric_deterministic_and_similarity_invariant():
     va, fa = sphere(1.0, 32)
     vb, fb = box((1.6, 1.6, 1.6))
-    ab = M.chamfer_distance(va, fa, vb, fb, n_samples=10_000, seed=3)
-    assert ab == M.chamfer_distance(va, fa, vb, fb, n_samples=10_000, seed=3)
-    raw_ab = M.chamfer_distance(va, fa, vb, fb, n_samples=10_000, seed=3, normalize=False)
-    assert raw_ab == M.chamfer_distance(vb, fb, va, fa, n_samples=10_000, seed=3, normalize=False)
+    ab = chamfer_distance(va, fa, vb, fb, n_samples=10_000, seed=3)
+    assert ab == chamfer_distance(va, fa, vb, fb, n_samples=10_000, seed=3)
+    raw_ab = chamfer_distance(va, fa, vb, fb, n_samples=10_000, seed=3, normalize=False)
+    assert raw_ab == chamfer_distance(vb, fb, va, fa, n_samples=10_000, seed=3, normalize=False)
     assert ab == pytest.approx(raw_ab / (float((va.max(0) - va.min(0)).max()) / 1.8))
     # normalized: moving and scaling both meshes together changes nothing
-    moved = M.chamfer_distance(7.0 * va + 3.0, fa, 7.0 * vb + 3.0, fb, n_samples=10_000, seed=3)
+    moved = chamfer_distance(7.0 * va + 3.0, fa, 7.0 * vb + 3.0, fb, n_samples=10_000, seed=3)
     assert moved == pytest.approx(ab, rel=1e-9)
-    assert M.chamfer_distance(va, fa, vb, fb, n_samples=10_000, seed=4) == pytest.approx(ab, rel=0.02)
+    assert chamfer_distance(va, fa, vb, fb, n_samples=10_000, seed=4) == pytest.approx(ab, rel=0.02)
 
 
 def test_chamfer_uses_the_first_mesh_frame():
     """The decoded mesh is normalized with the input's transform: a shift is measured, not normalized away."""
     v, f = box((1.8, 1.8, 1.8))  # already in the normalized frame
     shifted = v + np.array([0.01, 0.0, 0.0])
-    cd = M.chamfer_distance(v, f, shifted, f, n_samples=20_000)
+    cd = chamfer_distance(v, f, shifted, f, n_samples=20_000)
     # only the two x faces (1/3 of the area) are 0.01 away; the other faces slide within their planes
     assert cd == pytest.approx(0.01 / 3, rel=0.05)
 
@@ -109,12 +115,12 @@ def test_tilted_plane_normals_and_offset_plane_f1():
     for deg, inaccurate in ((3.0, 0.0), (10.0, 100.0)):
         t = math.radians(deg)
         rot = np.array([[1, 0, 0], [0, math.cos(t), -math.sin(t)], [0, math.sin(t), math.cos(t)]])
-        a, b = M.prepare_mesh(v, f, FAST), M.prepare_mesh(v @ rot.T, f, FAST)
-        r = M.fidelity(a, b, FAST)
+        a, b = prepare_mesh(v, f, FAST), prepare_mesh(v @ rot.T, f, FAST)
+        r = fidelity(a, b, FAST)
         assert r["normal_consistency"] == pytest.approx(math.cos(t), abs=1e-9)
         assert r["inaccurate_normals_pct"] == inaccurate
-    a, b = M.prepare_mesh(v, f, FAST), M.prepare_mesh(v + [0.0, 0.0, 0.003], f, FAST)
-    r = M.fidelity(a, b, FAST)
+    a, b = prepare_mesh(v, f, FAST), prepare_mesh(v + [0.0, 0.0, 0.003], f, FAST)
+    r = fidelity(a, b, FAST)
     assert r["chamfer"] == pytest.approx(0.003) and r["hausdorff"] == pytest.approx(0.003)
     assert r["f1@0.001"] == 0.0 and r["f1@0.005"] == 1.0
 
@@ -124,47 +130,47 @@ def test_hausdorff_catches_a_single_raised_vertex():
     raised = v.copy()
     centre = np.argmin(np.linalg.norm(v, axis=1))
     raised[centre, 2] = 0.2
-    r = M.fidelity(M.prepare_mesh(v, f, FAST), M.prepare_mesh(raised, f, FAST), FAST)
+    r = fidelity(prepare_mesh(v, f, FAST), prepare_mesh(raised, f, FAST), FAST)
     assert r["hausdorff"] == pytest.approx(0.2, abs=1e-9)
     assert 0 < r["chamfer"] < 0.01
 
 
 def test_edge_points_lie_on_the_box_creases():
     v, f = box((1.8, 1.8, 1.8))
-    mesh = M.prepare_mesh(v, f, FAST)
+    mesh = prepare_mesh(v, f, FAST)
     edge = mesh.points[mesh.edge_mask]
     band = 12 * 1.8 * 2 * FAST.edge_radius / (6 * 1.8**2)  # area within edge_radius of a crease / total area
     assert 0.5 * band < len(edge) / len(mesh.points) < 1.05 * band
     near_face = np.abs(edge) > 0.9 - FAST.edge_radius - 1e-9
     assert np.all(near_face.sum(axis=1) >= 2)  # within edge_radius of two faces: next to a crease
-    assert not M.prepare_mesh(*sphere(), FAST).edge_mask.any()  # smooth: no crease
+    assert not prepare_mesh(*sphere(), FAST).edge_mask.any()  # smooth: no crease
 
 
 def test_edge_metrics_sharp_against_smooth():
     vb, fb = box((1.8, 1.8, 1.8))
     vs, fs = sphere(1.0, 48)
-    a, b = M.prepare_mesh(vb, fb, FAST), M.prepare_mesh(vs, fs, FAST)
-    r = M.fidelity(a, b, FAST)
+    a, b = prepare_mesh(vb, fb, FAST), prepare_mesh(vs, fs, FAST)
+    r = fidelity(a, b, FAST)
     assert r["edge_chamfer"] == math.inf and r["edge_f1"] == 0.0  # the sphere lost every crease
-    r = M.fidelity(b, a, FAST)
+    r = fidelity(b, a, FAST)
     assert r["edge_chamfer"] == 0.0 and r["edge_f1"] == 1.0  # nothing to reproduce
     # a slightly shrunk box keeps its creases: edge distance ~ the shift of the crease lines
-    c = M.prepare_mesh(0.99 * vb, fb, FAST)
-    r = M.fidelity(a, c, FAST)
+    c = prepare_mesh(0.99 * vb, fb, FAST)
+    r = fidelity(a, c, FAST)
     assert 0.003 < r["edge_chamfer"] < 0.02 and r["edge_f1"] == 0.0
-    r = M.fidelity(a, M.prepare_mesh(0.999 * vb, fb, FAST), FAST)
+    r = fidelity(a, prepare_mesh(0.999 * vb, fb, FAST), FAST)
     assert r["edge_chamfer"] < 0.002 and r["edge_f1"] == 1.0
 
 
 def test_sample_surface_is_area_weighted_and_on_the_faces():
     v = np.array([[0, 0, 0], [3, 0, 0], [0, 1, 0], [0, 0, 1], [1, 0, 1], [0, 1, 1]], dtype=float)
     f = np.array([[0, 1, 2], [3, 4, 5]])  # areas 1.5 and 0.5
-    p, face = M.sample_surface(v, f, 40_000, seed=1)
+    p, face = sample_surface(v, f, 40_000, seed=1)
     assert np.mean(face == 0) == pytest.approx(0.75, abs=0.01)
     assert np.allclose(p[face == 0, 2], 0) and np.allclose(p[face == 1, 2], 1)
     assert np.all(p[face == 0, 0] / 3 + p[face == 0, 1] <= 1 + 1e-12)
     with pytest.raises(ValueError):
-        M.sample_surface(v, np.array([[0, 0, 1]]), 10)
+        sample_surface(v, np.array([[0, 0, 1]]), 10)
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -185,7 +191,7 @@ NEEDLE = np.array([[0, 0, 0], [1, 0, 0], [0.5, 0.05, 0]])  # base 1, height 0.05
     ],
 )
 def test_single_triangle_quality(tri, aspect, radius, angle):
-    q = M.triangle_quality(tri, np.array([[0, 1, 2]]))
+    q = triangle_quality(tri, np.array([[0, 1, 2]]))
     assert q["aspect_ratio"][0] == pytest.approx(aspect)
     if radius is None:  # R/r from the side lengths a = 1, b = c = sqrt(0.25 + 0.0025)
         b = math.hypot(0.5, 0.05)
@@ -196,14 +202,14 @@ def test_single_triangle_quality(tri, aspect, radius, angle):
 
 
 def test_degenerate_triangle_is_worst_quality():
-    q = M.triangle_quality(np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0]], float), np.array([[0, 1, 2]]))
+    q = triangle_quality(np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0]], float), np.array([[0, 1, 2]]))
     assert q["aspect_ratio"][0] == math.inf and q["radius_ratio"][0] == math.inf and q["min_angle_deg"][0] == 0
 
 
 def test_quality_percentages():
     v = np.concatenate([EQUILATERAL, NEEDLE + [0, 0, 1], RIGHT_ISOSCELES + [0, 0, 2]])
     f = np.arange(9).reshape(3, 3)
-    r = M.mesh_report(v, f)
+    r = mesh_report(v, f)
     assert r["aspect_ratio_gt4_pct"] == pytest.approx(100 / 3)
     assert r["radius_ratio_gt4_pct"] == pytest.approx(100 / 3)
     assert r["small_angle_lt10_pct"] == pytest.approx(100 / 3)
@@ -217,14 +223,14 @@ def test_quality_percentages():
 )
 def test_quality_is_similarity_invariant_and_bounded_by_equilateral(coords, scale):
     tri = np.asarray(coords).reshape(3, 3)
-    q = M.triangle_quality(tri, np.array([[0, 1, 2]]))
+    q = triangle_quality(tri, np.array([[0, 1, 2]]))
     if not np.isfinite(q["aspect_ratio"][0]) or q["aspect_ratio"][0] > 1e6:
         return  # (near-)degenerate: invariance is ill-conditioned
     assert q["aspect_ratio"][0] >= 2 / math.sqrt(3) - 1e-9
     assert q["radius_ratio"][0] >= 2.0 - 1e-9
     assert 0 <= q["min_angle_deg"][0] <= 60.0 + 1e-9
     rot, _ = np.linalg.qr(np.array([[1.0, 2, 3], [0, 1, 4], [5, 6, 0]]))
-    q2 = M.triangle_quality(scale * tri @ rot.T + 1.5, np.array([[0, 1, 2]]))
+    q2 = triangle_quality(scale * tri @ rot.T + 1.5, np.array([[0, 1, 2]]))
     for key in q:
         assert q2[key][0] == pytest.approx(q[key][0], rel=1e-6)
 
@@ -235,14 +241,14 @@ def test_quality_is_similarity_invariant_and_bounded_by_equilateral(coords, scal
 
 
 def test_closed_box_is_watertight():
-    t = M.topology(*box())
+    t = topology(*box())
     assert t["watertight"] and t["two_manifold"] and t["oriented"] and t["manifold3d_ok"]
     assert t["boundary_edges"] == 0 and t["nonmanifold_edges"] == 0
 
 
 def test_mesh_with_a_hole_is_not_watertight():
     v, f = sphere(1.0, 24)
-    t = M.topology(v, f[1:])
+    t = topology(v, f[1:])
     assert not t["watertight"] and not t["manifold3d_ok"]
     assert t["two_manifold"] and t["boundary_edges"] == 3
 
@@ -251,7 +257,7 @@ def test_flipped_face_is_not_oriented():
     v, f = box()
     f = f.copy()
     f[0] = f[0, ::-1]
-    t = M.topology(v, f)
+    t = topology(v, f)
     assert not t["oriented"] and not t["watertight"] and not t["manifold3d_ok"]
     assert t["two_manifold"] and t["boundary_edges"] == 0
 
@@ -263,17 +269,17 @@ def test_bow_tie_vertex_and_fin_edge_are_not_manifold():
     corner_a = np.argmin(np.linalg.norm(va - 0.5, axis=1))
     fb2 = fb + len(va)
     fb2[fb == corner_b] = corner_a  # weld the two boxes at one vertex
-    t = M.topology(np.concatenate([va, vb]), np.concatenate([fa, fb2]))
+    t = topology(np.concatenate([va, vb]), np.concatenate([fa, fb2]))
     assert t["nonmanifold_edges"] == 0 and not t["two_manifold"] and not t["watertight"]
     fin = np.concatenate([fa, [[fa[0, 0], fa[0, 1], len(va)]]])  # a third face on an existing edge
-    t = M.topology(np.concatenate([va, [[3.0, 3.0, 3.0]]]), fin)
+    t = topology(np.concatenate([va, [[3.0, 3.0, 3.0]]]), fin)
     assert t["nonmanifold_edges"] == 1 and not t["two_manifold"]
 
 
 def test_unwelded_mesh_is_not_watertight():
     v, f = box()
     soup_v = v[f].reshape(-1, 3)
-    t = M.topology(soup_v, np.arange(len(soup_v)).reshape(-1, 3))
+    t = topology(soup_v, np.arange(len(soup_v)).reshape(-1, 3))
     assert not t["watertight"] and t["boundary_edges"] == 3 * len(f)
 
 
@@ -284,45 +290,45 @@ def test_unwelded_mesh_is_not_watertight():
 
 def test_crossing_triangles_are_flagged():
     v = np.array([[0, 0, 0], [2, 0, 0], [0, 2, 0], [0.5, 0.5, -1], [0.5, 0.5, 1], [1.5, 1.5, 0.2]], float)
-    assert M.self_intersecting_faces(v, np.array([[0, 1, 2], [3, 4, 5]])).tolist() == [True, True]
+    assert self_intersecting_faces(v, np.array([[0, 1, 2], [3, 4, 5]])).tolist() == [True, True]
     far = v.copy()
     far[3:] += [5.0, 0, 0]
-    assert not M.self_intersecting_faces(far, np.array([[0, 1, 2], [3, 4, 5]])).any()
+    assert not self_intersecting_faces(far, np.array([[0, 1, 2], [3, 4, 5]])).any()
 
 
 def test_touching_and_adjacent_triangles_are_not_flagged():
     v = np.array([[0, 0, 0], [2, 0, 0], [0, 2, 0], [0.5, 0.5, 0], [0.5, 0.5, 1], [1.5, 0.5, 1]], float)
     # the second triangle touches the first one's interior at a vertex without crossing it
-    assert not M.self_intersecting_faces(v, np.array([[0, 1, 2], [3, 4, 5]])).any()
+    assert not self_intersecting_faces(v, np.array([[0, 1, 2], [3, 4, 5]])).any()
     # fans around a shared vertex and pairs sharing an edge
-    assert not M.self_intersecting_faces(*sphere(1.0, 32)).any()
-    assert not M.self_intersecting_faces(*box()).any()
+    assert not self_intersecting_faces(*sphere(1.0, 32)).any()
+    assert not self_intersecting_faces(*box()).any()
 
 
 def test_fold_around_a_shared_vertex_is_flagged():
     v = np.array([[0, 0, 0], [2, 0, 0], [0, 2, 0], [1.0, 0.3, -0.5], [0.3, 1.0, 0.5]], float)
     # both triangles use vertex 0; the second one's far edge (3, 4) pierces the first triangle
-    assert M.self_intersecting_faces(v, np.array([[0, 1, 2], [0, 3, 4]])).tolist() == [True, True]
+    assert self_intersecting_faces(v, np.array([[0, 1, 2], [0, 3, 4]])).tolist() == [True, True]
 
 
 def test_coplanar_overlap_is_flagged():
     v = np.array([[0, 0, 0], [2, 0, 0], [0, 2, 0], [0.5, 0.5, 0], [2.5, 0.5, 0], [0.5, 2.5, 0]], float)
-    assert M.self_intersecting_faces(v, np.array([[0, 1, 2], [3, 4, 5]])).all()
+    assert self_intersecting_faces(v, np.array([[0, 1, 2], [3, 4, 5]])).all()
     # an exact duplicate with its own vertices
     dup = np.concatenate([v[:3], v[:3]])
-    assert M.self_intersecting_faces(dup, np.array([[0, 1, 2], [3, 4, 5]])).all()
+    assert self_intersecting_faces(dup, np.array([[0, 1, 2], [3, 4, 5]])).all()
     apart = v.copy()
     apart[3:] += [3.0, 0, 0]
-    assert not M.self_intersecting_faces(apart, np.array([[0, 1, 2], [3, 4, 5]])).any()
+    assert not self_intersecting_faces(apart, np.array([[0, 1, 2], [3, 4, 5]])).any()
 
 
 def test_overlapping_boxes_flag_only_the_crossing_faces():
     va, fa = box()
     vb, fb = box(center=(0.5, 0.3, 0.2))
     v, f = np.concatenate([va, vb]), np.concatenate([fa, fb + len(va)])
-    flagged = M.self_intersecting_faces(v, f)
+    flagged = self_intersecting_faces(v, f)
     assert 0 < flagged.sum() < len(f)
-    assert M.mesh_report(v, f)["self_intersect_pct"] == pytest.approx(100 * flagged.mean())
+    assert mesh_report(v, f)["self_intersect_pct"] == pytest.approx(100 * flagged.mean())
     # the faces of box A on its -x, -y, -z sides are far from box B
     far = np.all(va[fa][:, :, 0] < -0.4, axis=1)
     assert not flagged[: len(fa)][far].any()
@@ -331,4 +337,4 @@ def test_overlapping_boxes_flag_only_the_crossing_faces():
 def test_self_intersections_scale_to_a_dense_sphere():
     v, f = sphere(1.0, 512)  # 131K faces
     assert len(f) > 100_000
-    assert not M.self_intersecting_faces(v, f).any()
+    assert not self_intersecting_faces(v, f).any()

@@ -21,7 +21,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from tetweave_codec.metrics import sample_surface
+from tetweave_codec.geometry.triangles import sample_surface
 
 # Smoothing of sqrt at 0 (normalized units): far below any distance the fit resolves.
 _EPS = 1e-6

@@ -1,0 +1,87 @@
+"""Triangle primitives, one home for numpy and torch: face cross products, areas, unit normals, surface samples.
+
+`triangle_cross`, `face_cross`, `face_areas`, `face_normals` and `unit_vectors` take numpy arrays or torch tensors
+and return the same kind (torch: differentiable, on the input's device; torch is imported only when given a tensor,
+so the numpy paths never load it). `sample_surface` is numpy only.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from tetweave_codec.geometry.sh import _is_torch
+
+
+def triangle_cross(tri: Any) -> Any:
+    """(c1 - c0) x (c2 - c0) of triangles given by their corners tri (...,3,3): the right-hand normal scaled by twice
+    the area (...,3)."""
+    e1, e2 = tri[..., 1, :] - tri[..., 0, :], tri[..., 2, :] - tri[..., 0, :]
+    if _is_torch(tri):
+        import torch
+
+        return torch.linalg.cross(e1, e2, dim=-1)
+    return np.cross(e1, e2)
+
+
+def face_cross(vertices: Any, faces: Any) -> Any:
+    """(v1 - v0) x (v2 - v0) per face (F,3): the right-hand normal scaled by twice the face's area.
+
+    vertices (V,3) float, faces (F,3) int; numpy arrays or torch tensors (same kind back).
+    """
+    if _is_torch(vertices):
+        import torch
+
+        v0 = vertices.index_select(0, faces[:, 0])
+        e1 = vertices.index_select(0, faces[:, 1]) - v0
+        e2 = vertices.index_select(0, faces[:, 2]) - v0
+        return torch.linalg.cross(e1, e2, dim=-1)
+    return triangle_cross(np.asarray(vertices)[np.asarray(faces)])
+
+
+def unit_vectors(v: Any) -> Any:
+    """Vectors v (...,3) scaled to unit length; zero vectors stay zero."""
+    if _is_torch(v):
+        import torch
+
+        return v * torch.rsqrt((v * v).sum(-1, keepdim=True).clamp_min(torch.finfo(v.dtype).tiny))
+    length = np.linalg.norm(v, axis=-1, keepdims=True)
+    return np.divide(v, length, out=np.zeros_like(v), where=length > 0)
+
+
+def face_areas(vertices: Any, faces: Any) -> Any:
+    """Face areas (F,) (0 for degenerate faces)."""
+    cross = face_cross(vertices, faces)
+    if _is_torch(cross):
+        return 0.5 * cross.norm(dim=-1)
+    return 0.5 * np.linalg.norm(cross, axis=-1)
+
+
+def face_normals(vertices: Any, faces: Any) -> Any:
+    """Unit face normals (F,3) by the right-hand rule; zero rows for degenerate faces."""
+    return unit_vectors(face_cross(vertices, faces))
+
+
+def sample_surface(
+    vertices: np.ndarray, faces: np.ndarray, n: int, seed: int | np.random.Generator = 0
+) -> tuple[np.ndarray, np.ndarray]:
+    """`n` area-weighted uniform samples on a triangle mesh (numpy, float64).
+
+    Each sample picks a face with probability proportional to its area, then a uniform point in it (square-root
+    barycentrics). `seed` is an int or a numpy Generator (which is advanced): the same seed gives the same samples.
+    Returns points (n,3) float64 and the face index (n,) int64 of each. Raises ValueError on a mesh of zero area.
+    """
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    tri = v[f]
+    cdf = np.cumsum(face_areas(v, f))
+    if len(cdf) == 0 or not cdf[-1] > 0:
+        raise ValueError("cannot sample a mesh with zero surface area")
+    rng = np.random.default_rng(seed)
+    face = np.searchsorted(cdf, rng.random(n) * cdf[-1], side="right")
+    face = np.minimum(face, len(f) - 1)
+    r1, r2 = rng.random((2, n))
+    s = np.sqrt(r1)
+    bary = np.stack([1.0 - s, s * (1.0 - r2), s * r2], axis=1)
+    return np.einsum("nk,nkd->nd", bary, tri[face]), face.astype(np.int64)
