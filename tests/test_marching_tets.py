@@ -16,6 +16,7 @@ from tetweave_codec.geometry.marching_tets import (
     marching_tets,
     marching_tets_numpy,
 )
+from tetweave_codec.geometry.sh import num_coeffs
 
 SPHERE_R = 0.6
 
@@ -176,7 +177,7 @@ def test_vertices_are_linear_interpolation_of_s_without_sh():
 def test_zero_coefficients_equal_plain_s(degree):
     pts, s, tz = sphere_setup(3000, seed=3)
     plain = marching_tets_numpy(pts, tz.tets, s)
-    zero = marching_tets_numpy(pts, tz.tets, s, np.zeros((len(pts), (degree + 1) ** 2)))
+    zero = marching_tets_numpy(pts, tz.tets, s, np.zeros((len(pts), num_coeffs(degree))))
     assert np.array_equal(plain.faces, zero.faces) and np.array_equal(plain.edges, zero.edges)
     assert np.array_equal(plain.vertices, zero.vertices)
 
@@ -184,7 +185,7 @@ def test_zero_coefficients_equal_plain_s(degree):
 @pytest.mark.parametrize("degree", [0, 1, 2, 3])
 def test_coefficients_move_vertices_along_edges_only(degree):
     pts, s, tz = sphere_setup(3000, seed=4)
-    c = np.random.default_rng(5).normal(size=(len(pts), (degree + 1) ** 2)) * 2.0
+    c = np.random.default_rng(5).normal(size=(len(pts), num_coeffs(degree))) * 2.0
     plain = marching_tets_numpy(pts, tz.tets, s, None, tz.hull_faces)
     moved = marching_tets_numpy(pts, tz.tets, s, c, tz.hull_faces)
     assert np.array_equal(plain.faces, moved.faces) and np.array_equal(plain.edges, moved.edges)

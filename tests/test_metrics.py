@@ -11,7 +11,6 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from tetweave_codec.geometry.triangles import sample_surface
 from tetweave_codec.metrics.common import MetricOptions
 from tetweave_codec.metrics.fidelity import chamfer_distance, fidelity, prepare_mesh, prepare_reference
 from tetweave_codec.metrics.intersections import self_intersecting_faces
@@ -160,17 +159,6 @@ def test_edge_metrics_sharp_against_smooth():
     assert 0.003 < r["edge_chamfer"] < 0.02 and r["edge_f1"] == 0.0
     r = fidelity(a, prepare_mesh(0.999 * vb, fb, FAST), FAST)
     assert r["edge_chamfer"] < 0.002 and r["edge_f1"] == 1.0
-
-
-def test_sample_surface_is_area_weighted_and_on_the_faces():
-    v = np.array([[0, 0, 0], [3, 0, 0], [0, 1, 0], [0, 0, 1], [1, 0, 1], [0, 1, 1]], dtype=float)
-    f = np.array([[0, 1, 2], [3, 4, 5]])  # areas 1.5 and 0.5
-    p, face = sample_surface(v, f, 40_000, seed=1)
-    assert np.mean(face == 0) == pytest.approx(0.75, abs=0.01)
-    assert np.allclose(p[face == 0, 2], 0) and np.allclose(p[face == 1, 2], 1)
-    assert np.all(p[face == 0, 0] / 3 + p[face == 0, 1] <= 1 + 1e-12)
-    with pytest.raises(ValueError):
-        sample_surface(v, np.array([[0, 0, 1]]), 10)
 
 
 # ----------------------------------------------------------------------------------------------------------

@@ -21,7 +21,6 @@ from tetweave_codec.render import (
     image_grid,
     look_at_cameras,
     mesh_edges,
-    random_cameras,
     rasterize,
     render_maps,
     save_png,
@@ -85,13 +84,11 @@ def test_world_up_appears_up_and_right_appears_right(device):
     assert torch.allclose(torch.linalg.det(top.rotation), torch.ones(1, dtype=torch.float64))
 
 
-def test_random_cameras_are_seeded():
-    a = random_cameras(5, torch.Generator().manual_seed(3), radius=2.5)
-    b = random_cameras(5, torch.Generator().manual_seed(3), radius=2.5)
-    c = random_cameras(5, torch.Generator().manual_seed(4), radius=2.5)
-    assert torch.equal(a.eye, b.eye) and not torch.equal(a.eye, c.eye)
+def test_cameras_index_like_a_sequence():
+    a = fibonacci_cameras(5, radius=2.5)
     assert torch.allclose(a.eye.norm(dim=1), torch.full((5,), 2.5), atol=1e-5)
     assert len(a[1:3]) == 2 and len(a[0]) == 1
+    assert torch.equal(a[1:3].eye, a.eye[1:3]) and torch.equal(a[torch.tensor([4, 0])].eye, a.eye[[4, 0]])
 
 
 # ------------------------------------------------------------ analytic

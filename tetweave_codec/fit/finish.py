@@ -20,13 +20,14 @@ import torch
 from torch import Tensor
 
 from tetweave_codec.fit.config import Quantization
+from tetweave_codec.fit.initialize import MIN_ABS_S
 from tetweave_codec.fit.step import FitContext, Params, backward, regularized_loss, triangulate
 from tetweave_codec.formats import quantize as Q
 from tetweave_codec.geometry.active import active_mask
 
 # Smallest |s| a v1 file stores: float16 keeps its sign (and marching tets never puts a vertex exactly on a grid
-# point, which would give zero-area triangles). The smallest normal float16.
-V1_MIN_ABS_S = 2.0**-14
+# point, which would give zero-area triangles). The smallest normal float16, initialize.MIN_ABS_S.
+V1_MIN_ABS_S = MIN_ABS_S
 # |c| above this saturates tanh for any direction; clamping keeps c finite in float16.
 V1_MAX_ABS_C = 64.0
 

@@ -20,6 +20,8 @@ import igl
 import numpy as np
 
 from tetweave_codec.errors import InputError
+from tetweave_codec.geometry.sh import check_degree, num_coeffs
+from tetweave_codec.geometry.triangles import face_areas, face_normals, sample_surface
 
 # Half side of the cube the initial points fill: the normalized input ([-0.9, 0.9]^3) plus a margin of 0.1, so
 # that every camera ray that can hit the shape crosses grid points on both sides of the surface.
@@ -37,6 +39,9 @@ UNIFORM_FRACTION = 0.1
 SHELL = 1.0
 # Offsets from the surface are drawn with |t| in [SHELL_GAP, 1] * half width (see ``initial_points``).
 SHELL_GAP = 0.25
+# Smallest |s| a point gets (and a v1 file stores, see fit.finish): the smallest normal float16, so that float16
+# keeps every sign (s = 0 would leave a grid point's side undefined).
+MIN_ABS_S = 2.0**-14
 # Stratified surface sampling: candidates per sample, and bisection steps on the cell size (2^-12 relative).
 OVERSAMPLE = 4
 STRATIFY_BISECTIONS = 12
@@ -72,30 +77,15 @@ def signed_distance(queries: np.ndarray, vertices: np.ndarray, faces: np.ndarray
     return np.where(np.abs(winding) > INSIDE_WINDING, -dist, dist)
 
 
-def _face_areas_normals(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(F,) areas and (F,3) unit normals (zero for degenerate faces)."""
-    tri = vertices[faces]
-    cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    norm = np.linalg.norm(cross, axis=1)
-    normals = np.divide(cross, norm[:, None], out=np.zeros_like(cross), where=norm[:, None] > 0)
-    return 0.5 * norm, normals
-
-
 def _sample_surface(
     vertices: np.ndarray, faces: np.ndarray, n: int, rng: np.random.Generator
 ) -> tuple[np.ndarray, np.ndarray, float]:
     """Area-weighted random points on the surface: positions (n,3), face normals (n,3), total area."""
-    areas, normals = _face_areas_normals(vertices, faces)
-    total = float(areas.sum())
+    total = float(face_areas(vertices, faces).sum())
     if not np.isfinite(total) or total <= 0.0:
         raise InputError("the mesh has no surface area (all faces are degenerate)")
-    face = rng.choice(len(faces), size=n, p=areas / total)
-    u, v = rng.random(n), rng.random(n)
-    flip = u + v > 1.0  # fold the unit square onto the triangle
-    u[flip], v[flip] = 1.0 - u[flip], 1.0 - v[flip]
-    tri = vertices[faces[face]]
-    pos = tri[:, 0] + u[:, None] * (tri[:, 1] - tri[:, 0]) + v[:, None] * (tri[:, 2] - tri[:, 0])
-    return pos, normals[face], total
+    pos, face = sample_surface(vertices, faces, n, rng)
+    return pos, face_normals(vertices, faces)[face], total
 
 
 def _cell_keys(points: np.ndarray, size: float) -> np.ndarray:
@@ -228,22 +218,19 @@ def initial_state(
         vertices: (V,3) mesh vertices in the normalized frame.
         faces: (F,3) triangles.
         n: number of points.
-        sh_degree: degree d of the SH coefficients, q = (d + 1)^2 per point.
+        sh_degree: degree d (-1 = none, 0..3) of the SH coefficients, q = num_coeffs(d) per point.
         seed: seed of the numpy Generator that draws the points.
         **kwargs: forwarded to ``initial_points`` (shell, uniform_fraction, shell_gap).
     Returns:
         points (n,3) float32, s (n,) float32, c (n,q) float32 (zeros); the first N_CORNERS points are the
         cube's corners.
     """
-    if sh_degree < 0:
-        raise ValueError(f"sh_degree must be >= 0, got {sh_degree}")
+    check_degree(sh_degree)  # ValueError
     rng = np.random.default_rng(seed)
     points = initial_points(vertices, faces, n, rng, **kwargs).astype(np.float32)
     s = signed_distance(points, vertices, faces).astype(np.float32)
-    # s = 0 exactly would leave a grid point's side undefined; give it the outside sign with a float16-safe
-    # size.
-    s[s == 0] = 2.0**-14
-    c = np.zeros((n, (sh_degree + 1) ** 2), dtype=np.float32)
+    s[s == 0] = MIN_ABS_S  # the outside sign
+    c = np.zeros((n, num_coeffs(sh_degree)), dtype=np.float32)
     return points, s, c
 
 
@@ -258,15 +245,14 @@ def random_state(
 
     Args:
         n: number of points.
-        sh_degree: SH degree d, q = (d + 1)^2.
+        sh_degree: SH degree d (-1 = none, 0..3), q = num_coeffs(d).
         seed: seed of the numpy Generator.
         radius: radius of the ball.
         sdf: ``"random"`` or ``"sphere"``.
     Returns:
         points (n,3) float32, s (n,) float32, c (n,q) float32 (zeros).
     """
-    if sh_degree < 0:
-        raise ValueError(f"sh_degree must be >= 0, got {sh_degree}")
+    check_degree(sh_degree)  # ValueError
     rng = np.random.default_rng(seed)
     direction = rng.normal(size=(n, 3))
     direction /= np.linalg.norm(direction, axis=1, keepdims=True)
@@ -279,6 +265,6 @@ def random_state(
     else:
         raise ValueError(f"sdf must be 'random' or 'sphere', got {sdf!r}")
     s = s.astype(np.float32)
-    s[s == 0] = 2.0**-14
-    c = np.zeros((n, (sh_degree + 1) ** 2), dtype=np.float32)
+    s[s == 0] = MIN_ABS_S
+    c = np.zeros((n, num_coeffs(sh_degree)), dtype=np.float32)
     return points, s, c

@@ -82,7 +82,7 @@ def check_degree(degree: int) -> int:
 def degree_from_num_coeffs(q: int) -> int:
     """Inverse of `num_coeffs`: the degree whose basis has `q` coefficients (0 -> -1), else ValueError."""
     for degree in range(SH_DEGREE_NONE, SH_DEGREE_MAX + 1):
-        if (degree + 1) ** 2 == q:
+        if num_coeffs(degree) == q:
             return degree
     raise ValueError(f"{q} SH coefficients per point is not (degree + 1)^2 for a degree -1..{SH_DEGREE_MAX}")
 

@@ -1,8 +1,10 @@
 """Differentiable offscreen renderer in plain torch (rasterize -> interpolate -> antialias)."""
 
+from tetweave_codec.geometry.triangles import face_normals
+
 from .antialias import MeshEdges, antialias, mesh_edges
-from .cameras import Cameras, fibonacci_cameras, look_at_cameras, random_cameras
-from .interpolate import face_normals, perspective_barycentrics, vertex_normals
+from .cameras import Cameras, fibonacci_cameras, look_at_cameras
+from .interpolate import perspective_barycentrics, vertex_normals
 from .maps import RenderMaps, render_maps
 from .rasterize import Fragments, rasterize
 from .shading import image_grid, save_png, shade
@@ -19,7 +21,6 @@ __all__ = [
     "look_at_cameras",
     "mesh_edges",
     "perspective_barycentrics",
-    "random_cameras",
     "rasterize",
     "render_maps",
     "save_png",

@@ -34,8 +34,9 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from tetweave_codec.geometry.triangles import face_cross
+
 from .cameras import Cameras
-from .interpolate import face_cross
 from .rasterize import NEAR
 
 VIEW_BITS = 52  # views whose facings share one int64 per face (summed as float64 bits: exact up to 2**53)

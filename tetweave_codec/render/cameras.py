@@ -154,23 +154,3 @@ def fibonacci_cameras(
     phi = i * GOLDEN_ANGLE
     eyes = torch.stack([r * torch.cos(phi), y, r * torch.sin(phi)], dim=-1) * radius
     return look_at_cameras(eyes, fov_deg=fov_deg).to(device=device, dtype=dtype)
-
-
-def random_cameras(
-    n: int,
-    generator: torch.Generator,
-    radius: float = 3.0,
-    fov_deg: float = 45.0,
-    device=None,
-    dtype: torch.dtype = torch.float32,
-) -> Cameras:
-    """n cameras at uniformly random directions on a sphere of `radius`, looking at the origin.
-
-    Directions are drawn on the CPU from `generator` (a CPU torch.Generator), so that a seed gives the same
-    views on every device.
-    """
-    if n <= 0:
-        raise ValueError(f"need at least one camera, got {n}")
-    dirs = torch.randn(n, 3, generator=generator, dtype=torch.float64)
-    dirs = dirs / dirs.norm(dim=-1, keepdim=True).clamp_min(1e-12)
-    return look_at_cameras(dirs * radius, fov_deg=fov_deg).to(device=device, dtype=dtype)

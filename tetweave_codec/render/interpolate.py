@@ -11,6 +11,8 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
+from tetweave_codec.geometry.triangles import face_cross, unit_vectors
+
 
 def perspective_barycentrics(x: Tensor, y: Tensor, z: Tensor, px: Tensor, py: Tensor) -> tuple[Tensor, Tensor]:
     """Perspective-correct barycentrics and depth of pixel centres inside triangles (differentiable).
@@ -28,24 +30,6 @@ def perspective_barycentrics(x: Tensor, y: Tensor, z: Tensor, px: Tensor, py: Te
     # A degenerate (zero-area) triangle would divide 0 by 0: its pixels get zero weights and depth instead.
     inv = 1.0 / torch.where(denom == 0, torch.ones_like(denom), denom)
     return weighted * inv[:, None], sub.sum(-1) * inv
-
-
-def face_cross(vertices: Tensor, faces: Tensor) -> Tensor:
-    """(v1 - v0) x (v2 - v0) per face (F,3): the right-hand normal scaled by twice the face's area."""
-    v0 = vertices.index_select(0, faces[:, 0])
-    e1 = vertices.index_select(0, faces[:, 1]) - v0
-    e2 = vertices.index_select(0, faces[:, 2]) - v0
-    return torch.linalg.cross(e1, e2, dim=-1)
-
-
-def unit_vectors(v: Tensor) -> Tensor:
-    """Vectors v (...,3) scaled to unit length (zero vectors stay zero)."""
-    return v * torch.rsqrt((v * v).sum(-1, keepdim=True).clamp_min(torch.finfo(v.dtype).tiny))
-
-
-def face_normals(vertices: Tensor, faces: Tensor) -> Tensor:
-    """Unit normals (F,3) of faces (F,3) by the right-hand rule (zero for degenerate faces)."""
-    return unit_vectors(face_cross(vertices, faces))
 
 
 def vertex_normals(vertices: Tensor, faces: Tensor, cross: Tensor | None = None) -> Tensor:

@@ -7,10 +7,12 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
+from tetweave_codec.geometry.triangles import face_cross, unit_vectors
+
 from .antialias import MeshEdges, mesh_edges
 from .antialias import antialias as antialias_silhouettes
 from .cameras import Cameras, image_size
-from .interpolate import face_cross, perspective_barycentrics, unit_vectors, vertex_normals
+from .interpolate import perspective_barycentrics, vertex_normals
 from .rasterize import Fragments, check_mesh, gather_triangles, pixel_centres, zbuffer
 
 NORMAL_MODES = ("flat", "smooth")
