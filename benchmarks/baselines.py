@@ -9,7 +9,7 @@ rates beats quantizing the full mesh harder (fewer vertices to code at a given e
 from __future__ import annotations
 
 import numpy as np
-from tetweave_codec.benchmarks.methods import Method
+from tetweave_codec.benchmarks.methods import DECIMATE_DRACO, DRACO, Method
 
 DRACO_BITS = (8, 10, 11, 12, 14, 16)
 DRACO_COMPRESSION_LEVEL = 7  # `draco_encoder`'s default (-cl 7); DracoPy defaults to 1
@@ -58,7 +58,7 @@ def decimate(vertices: np.ndarray, faces: np.ndarray, keep: float) -> tuple[np.n
 class DracoMethod(Method):
     """Draco on the full mesh at `quantization_bits` position bits."""
 
-    family = "draco"
+    family = DRACO
 
     def __init__(self, quantization_bits: int, compression_level: int = DRACO_COMPRESSION_LEVEL) -> None:
         if not 1 <= quantization_bits <= 30:
@@ -83,7 +83,7 @@ class DracoMethod(Method):
 class DecimateDracoMethod(Method):
     """Decimate to `keep` of the faces, then Draco at `quantization_bits` (one curve per bit depth)."""
 
-    family = "decimate+draco"
+    family = DECIMATE_DRACO
 
     def __init__(self, keep: float, quantization_bits: int, compression_level: int = DRACO_COMPRESSION_LEVEL) -> None:
         if not 0.0 < keep <= 1.0:

@@ -11,13 +11,15 @@ from collections.abc import Callable
 
 import numpy as np
 
-FAMILIES = ("draco", "decimate+draco", "tetweave")
+# Method family names: the one home of these strings (baselines, report, `tetweave bench --methods`).
+DRACO, DECIMATE_DRACO, TETWEAVE = "draco", "decimate+draco", "tetweave"
+FAMILIES = (DRACO, DECIMATE_DRACO, TETWEAVE)
 
 
 class Method(ABC):
     """One compression method at one setting.
 
-    family: the method family ("draco", "decimate+draco", "tetweave"); the summary compares families.
+    family: the method family, one of FAMILIES; the summary compares families.
     setting: short label of the parameters within the family, e.g. "q11" or "16384 pts sh1".
     curve: label of the rate-distortion curve this setting belongs to (settings that vary along one axis).
     """
@@ -64,7 +66,7 @@ class TetweaveMethod(Method):
     progress: optional fit progress callback, passed to the encoder unchanged.
     """
 
-    family = "tetweave"
+    family = TETWEAVE
 
     def __init__(
         self,

@@ -16,16 +16,17 @@ from pathlib import Path
 
 import numpy as np
 from tetweave_codec.benchmarks.batch import COLUMNS, INPUT_FAMILY, MeshResult
+from tetweave_codec.benchmarks.methods import DECIMATE_DRACO, DRACO, FAMILIES, TETWEAVE
 
 from tetweave_codec.meshio import write_bytes_atomic
 from tetweave_codec.metrics.rate_distortion import bytes_at, pareto_front
 
-FOCUS_ORDER = ("tetweave", "decimate+draco", "draco")  # the family the verdict is about, first present wins
-PICTURE_FAMILIES = ("draco", "decimate+draco", "tetweave")
+FOCUS_ORDER = (TETWEAVE, DECIMATE_DRACO, DRACO)  # the family the verdict is about, first present wins
+PICTURE_FAMILIES = FAMILIES
 CURVE_STYLE = {
-    "draco": ("tab:blue", "o"),
-    "decimate+draco": ("tab:orange", "s"),
-    "tetweave": ("tab:green", "^"),
+    DRACO: ("tab:blue", "o"),
+    DECIMATE_DRACO: ("tab:orange", "s"),
+    TETWEAVE: ("tab:green", "^"),
 }
 
 
@@ -291,7 +292,7 @@ def plot_rate_distortion(rows: Sequence[dict], path: str | Path, title: str = ""
         style = ["-", "--", ":", "-."][dashes[family] % 4]
         ax.plot(x, y, style, color=colour, marker=marker, label=label, markersize=5)
         for r, xi, yi in zip(pts, x, y, strict=True):
-            tag = r["setting"].replace(" pts", "").split(" sh")[0] if family == "tetweave" else r["setting"]
+            tag = r["setting"].replace(" pts", "").split(" sh")[0] if family == TETWEAVE else r["setting"]
             ax.annotate(tag, (xi, yi), textcoords="offset points", xytext=(4, 3), fontsize=6, color=colour)
     ax.set_xscale("log")
     ax.set_yscale("log")
@@ -311,7 +312,7 @@ def comparable_rows(rows: Sequence[dict]) -> list[dict]:
     The reference is the middle-sized tetweave setting (or, without tetweave, the middle-sized decimate+Draco
     one); every other family contributes its setting closest to that size in log scale.
     """
-    for family in ("tetweave", "decimate+draco", "draco"):
+    for family in FOCUS_ORDER:
         candidates = sorted(ok_rows(rows, family), key=lambda r: _num(r["bytes"]))
         if candidates:
             reference = candidates[(len(candidates) - 1) // 2]

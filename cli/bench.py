@@ -12,9 +12,11 @@ import time
 from pathlib import Path
 
 import click
+from tetweave_codec.benchmarks.methods import DECIMATE_DRACO, DRACO, FAMILIES, TETWEAVE
 from tetweave_codec.cli.common import configure_torch, device_option, parse_count, threads_option
 
-METHOD_NAMES = ("draco", "decimate+draco", "tetweave")
+from tetweave_codec.fit.config import QUALITY
+from tetweave_codec.geometry.sh import SH_DEGREE_MAX
 
 
 def _split(text: str) -> list[str]:
@@ -59,9 +61,9 @@ def _fractions(ctx, param, value: str) -> list[float]:
 
 def _methods(ctx, param, value: str) -> list[str]:
     out = _split(value)
-    bad = [m for m in out if m not in METHOD_NAMES]
+    bad = [m for m in out if m not in FAMILIES]
     if bad or not out:
-        raise click.BadParameter(f"choose among {', '.join(METHOD_NAMES)} (comma-separated), got {value!r}")
+        raise click.BadParameter(f"choose among {', '.join(FAMILIES)} (comma-separated), got {value!r}")
     return list(dict.fromkeys(out))
 
 
@@ -91,7 +93,7 @@ def _command_line(p: dict) -> str:
 
     methods = p["methods"]
     args = [str(p["mesh_dir"]), "--out", str(p["out_dir"]), "--methods", ",".join(methods)]
-    if "tetweave" in methods:
+    if TETWEAVE in methods:
         args += [
             "--points",
             join(p["points"]),
@@ -102,9 +104,9 @@ def _command_line(p: dict) -> str:
         ]
         args += ["--iters", str(p["iters"])] if p["iters"] else []
         args += ["--device", p["device"]]
-    if "draco" in methods:
+    if DRACO in methods:
         args += ["--draco-bits", join(p["draco_bits"])]
-    if "decimate+draco" in methods:
+    if DECIMATE_DRACO in methods:
         args += ["--decimate", join(p["keep"]), "--decimate-bits", join(p["decimate_bits"])]
     args += ["--samples", str(p["samples"]), "--seed", str(p["seed"])]
     args += [] if p["pictures"] else ["--no-pictures"]
@@ -123,9 +125,9 @@ def _command_line(p: dict) -> str:
 )
 @click.option(
     "--methods",
-    default=",".join(METHOD_NAMES),
+    default=",".join(FAMILIES),
     callback=_methods,
-    help=f"Comma-separated methods among: {', '.join(METHOD_NAMES)}.",
+    help=f"Comma-separated methods among: {', '.join(FAMILIES)}.",
 )
 @click.option(
     "--points",
@@ -137,12 +139,12 @@ def _command_line(p: dict) -> str:
     "--sh-degree",
     "sh_degrees",
     default="1",
-    callback=_ints(0, 3),
+    callback=_ints(0, SH_DEGREE_MAX),
     help="tetweave SH degrees, comma-separated; every degree runs at every --points.",
 )
 @click.option(
     "--quality",
-    type=click.Choice(["fast", "default", "best"]),
+    type=click.Choice(list(QUALITY)),
     default="default",
     help="tetweave fit quality (iterations and render resolution).",
 )
@@ -218,18 +220,18 @@ def bench(
     def say(message: str) -> None:
         click.echo(f"[{time.perf_counter() - t_start:7.1f}s] {message}", err=True)
 
-    if "tetweave" in methods:
+    if TETWEAVE in methods:
         device = str(configure_torch(threads, device))
     elif threads and pictures:  # only the renderer uses torch; the baselines never import it
         import torch
 
         torch.set_num_threads(threads)
     method_list = []
-    if "draco" in methods:
+    if DRACO in methods:
         method_list += draco_methods(draco_bits)
-    if "decimate+draco" in methods:
+    if DECIMATE_DRACO in methods:
         method_list += decimate_draco_methods(keep, decimate_bits)
-    if "tetweave" in methods:
+    if TETWEAVE in methods:
         method_list += [
             TetweaveMethod(
                 n,

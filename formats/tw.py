@@ -218,9 +218,3 @@ def unpack(data: bytes | bytearray | memoryview) -> TetWeaveFile | TetWeaveFileV
         if not np.isfinite(arr).all():
             raise ContainerError(f"invalid .tw payload: non-finite {name}")
     return TetWeaveFile(points, s, c, int(degree), float(scale), offset, int(flags), int(codec))
-
-
-def read_file(path) -> TetWeaveFile | TetWeaveFileV2:
-    """Read and unpack a `.tw` file (OSError for unreadable paths, ContainerError for bad content)."""
-    with open(path, "rb") as fh:
-        return unpack(fh.read())

@@ -94,17 +94,6 @@ def _odt_terms(
     return det, guarded, n, (a + b + c) / 4.0, sq
 
 
-def tet_circumcenters(points: torch.Tensor, tets: torch.Tensor) -> torch.Tensor:
-    """(T,3) circumcenters of tetrahedra (flat ones get a far but finite center, see DEGENERATE_DET).
-
-    Args:
-        points: (N,3) float.
-        tets: (T,4) long.
-    """
-    _, det, n, _, _ = _odt_terms(points, tets)
-    return points[tets[:, 0]] + (n / (2.0 * det)).t()
-
-
 def odt_energy(points: torch.Tensor, tets: torch.Tensor) -> torch.Tensor:
     """Per-tetrahedron ODT energy of the paper (App. B): E = |M_S - M_T| = 1.6 V |centroid - circumcenter|^2.
 

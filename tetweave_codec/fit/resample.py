@@ -3,9 +3,8 @@
 A resampling step keeps the points that shape the mesh (active points and their one-ring, chosen by the caller
 with ``tetweave_codec.geometry.active``), drops the others and adds new points drawn from an importance grid over the
 current mesh: a voxel grid whose values are the mean rendering error of the pixels that land in each voxel
-(``voxel_importance``, paper eq. "importance") or 1 on the voxels the mesh touches (``uniform_importance``).
-New points get s and c by barycentric interpolation in the tetrahedron of the old triangulation that contains
-them.
+(``voxel_importance``, paper eq. "importance"). New points get s and c by barycentric interpolation in the
+tetrahedron of the old triangulation that contains them.
 
 Grids are indexed ``grid[i, j, k]`` with i along x, j along y, k along z; voxel (i, j, k) spans
 ``bbox_min + (i, j, k) * size`` to ``bbox_min + (i + 1, j + 1, k + 1) * size`` with
@@ -31,9 +30,6 @@ INSIDE_TOLERANCE = 1e-9
 # A walk gives up after this many steps and falls back to the nearest point (never reached on Delaunay grids
 # in the tests; it guards against cycles on degenerate input).
 MAX_WALK_STEPS = 2048
-# uniform_importance samples every triangle with a barycentric lattice whose step is at most this fraction of
-# the smallest voxel side.
-LATTICE_STEP = 0.5
 
 
 def _as_tensor(x, device=None, dtype=None) -> torch.Tensor:
@@ -94,54 +90,6 @@ def voxel_importance(
     sums, counts = _segment_sums(flat[inside], errors.reshape(-1)[inside], resolution**3)
     mean = torch.where(counts > 0, sums / counts.clamp_min(1), torch.zeros_like(sums))
     return mean.to(torch.float32).reshape(resolution, resolution, resolution)
-
-
-def _triangle_lattice(m: int) -> np.ndarray:
-    """(L,3) barycentric coordinates of the lattice with step 1/m on a triangle, L = (m+1)(m+2)/2."""
-    i, j = np.meshgrid(np.arange(m + 1), np.arange(m + 1), indexing="ij")
-    keep = i + j <= m
-    i, j = i[keep], j[keep]
-    return np.stack([m - i - j, i, j], axis=1) / m
-
-
-def uniform_importance(
-    vertices: Array, faces: Array, bbox: tuple[BoxCorner, BoxCorner], resolution: int = 32
-) -> torch.Tensor:
-    """Importance of uniform sampling (paper §4.3): 1 in the voxels the mesh touches, 0 elsewhere.
-
-    Each triangle is sampled with a barycentric lattice whose step is at most LATTICE_STEP voxel sides, so
-    every voxel the surface crosses by more than that is marked (a triangle that only clips a voxel's corner
-    may be missed).
-
-    Args:
-        vertices: (V,3) tensor or array. faces: (F,3). bbox: (bbox_min (3,), bbox_max (3,)).
-        resolution: R.
-    Returns:
-        (R,R,R) float32 grid on the device of ``vertices`` (CPU for arrays).
-    """
-    device = vertices.device if isinstance(vertices, torch.Tensor) else torch.device("cpu")
-    v = _to_numpy64(vertices).reshape(-1, 3)
-    f = _to_numpy(faces).astype(np.int64).reshape(-1, 3)
-    lo = _as_tensor(bbox[0], dtype=torch.float64).cpu().numpy()
-    hi = _as_tensor(bbox[1], dtype=torch.float64).cpu().numpy()
-    grid = np.zeros(resolution**3, dtype=np.float32)
-    if len(f):
-        tri = v[f]
-        longest = np.sqrt(((tri - np.roll(tri, 1, axis=1)) ** 2).sum(-1).max(1))
-        step = LATTICE_STEP * float(np.min(np.maximum(hi - lo, 1e-12))) / resolution
-        m = np.maximum(1, np.ceil(longest / step)).astype(np.int64)
-        for mi in np.unique(m):
-            lattice = _triangle_lattice(int(mi))
-            sel = tri[m == mi]
-            # chunks keep the (n, L, 3) sample array small for meshes with a few huge triangles
-            chunk = max(1, 2_000_000 // len(lattice))
-            for start in range(0, len(sel), chunk):
-                pts = np.einsum("lk,nkd->nld", lattice, sel[start : start + chunk]).reshape(-1, 3)
-                flat, inside = _voxel_index(
-                    torch.from_numpy(pts), torch.from_numpy(lo), torch.from_numpy(hi), resolution
-                )
-                grid[flat[inside].numpy()] = 1.0
-    return torch.from_numpy(grid.reshape(resolution, resolution, resolution)).to(device)
 
 
 def sample_from_importance(
@@ -376,10 +324,7 @@ def resample(
     bbox: tuple[BoxCorner, BoxCorner],
     n_target: int,
     generator: torch.Generator,
-    *,
-    priority: torch.Tensor | None = None,
-    return_kept: bool = False,
-) -> tuple[torch.Tensor, ...]:
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Keep the points that matter, drop the rest and draw new ones from an importance grid (paper §4.3).
 
     Args:
@@ -390,24 +335,19 @@ def resample(
         bbox: (bbox_min (3,), bbox_max (3,)) of the grid.
         n_target: number of points returned.
         generator: torch.Generator, the only source of randomness.
-        priority: optional (N,) bool; when more than n_target points are kept, the kept points outside
-            ``priority`` are dropped first (at random), then the others.
-        return_kept: also return the (n_kept,) long indices of the kept points in the input.
     Returns:
         points (n_target,3), s (n_target,), c (n_target,q), detached, on the input's device and dtypes: first
         the kept points in their original order, unchanged, then the new points with s and c interpolated
-        barycentrically in the old triangulation (nearest point outside it). With ``return_kept`` the kept
-        indices come fourth.
+        barycentrically in the old triangulation (nearest point outside it). When more than n_target points are
+        kept, only a random n_target of them stay.
     """
     device = points.device
     keep = _as_tensor(keep, device).bool()
     kept = torch.nonzero(keep).squeeze(1)
     if len(kept) > n_target:
-        # too many points to keep: drop at random, points outside `priority` first
+        # too many points to keep: drop at random
         rank = torch.rand(len(kept), generator=generator, device=generator.device, dtype=torch.float64)
         rank = rank.to(device)
-        if priority is not None:
-            rank = rank + _as_tensor(priority, device).bool()[kept].to(torch.float64)
         kept = torch.sort(kept[torch.argsort(rank, descending=True, stable=True)[:n_target]]).values
     n_new = n_target - len(kept)
     new_points = sample_from_importance(grid, bbox[0], bbox[1], n_new, generator, dtype=points.dtype)
@@ -417,6 +357,4 @@ def resample(
     out_points = torch.cat([points.detach()[kept], new_points])
     out_s = torch.cat([s.detach()[kept], new_values[:, 0].to(s.dtype)])
     out_c = torch.cat([c.detach().reshape(len(s), -1)[kept], new_values[:, 1:].to(c.dtype)])
-    if return_kept:
-        return out_points, out_s, out_c, kept
     return out_points, out_s, out_c
