@@ -132,9 +132,9 @@ def _write_obj(path, text):
     "content,needle",
     [
         (None, "no such file"),  # missing file
-        ("this is not a mesh at all\n\x00\x01", ""),  # unreadable
-        ("# empty\n", "no triangles"),
-        ("v nan 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", "nan"),
+        ("this is not a mesh at all\n\x00\x01", "contains no triangles"),  # unreadable: trimesh finds nothing
+        ("# empty\n", "contains no triangles"),
+        ("v nan 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", "non-finite (nan or infinite) vertex"),
     ],
 )
 def test_cli_bad_mesh_inputs(tmp_path, content, needle):
@@ -146,6 +146,7 @@ def test_cli_bad_mesh_inputs(tmp_path, content, needle):
     assert res.exit_code == 2, res.output
     lines = [ln for ln in res.output.strip().splitlines() if ln]
     assert len(lines) == 1 and "Traceback" not in res.output
+    assert lines[0].startswith(f"tetweave: error: {src}: ")  # names the file, then says what is wrong
     assert needle in lines[0].lower()
     assert not out.exists()
     assert not any(p.name.startswith(".") or p.suffix == ".tmp" for p in tmp_path.iterdir())
