@@ -6,6 +6,7 @@ import csv
 import math
 
 import manifold3d
+import matplotlib.colors
 import numpy as np
 import pytest
 from click.testing import CliRunner
@@ -233,6 +234,16 @@ def test_unreadable_mesh_is_reported_in_its_rows(mesh_dir):
 # ----------------------------------------------------------------------------------------------------------
 
 
+def _rgb(path) -> np.ndarray:
+    from PIL import Image
+
+    return np.asarray(Image.open(path).convert("RGB"), dtype=np.float64) / 255.0
+
+
+def _count_near(image: np.ndarray, colour, tol: float = 0.06) -> int:
+    return int((np.abs(image - np.asarray(colour)).max(-1) < tol).sum())
+
+
 def _png_size(path):
     data = path.read_bytes()
     assert data[:8] == b"\x89PNG\r\n\x1a\n"
@@ -267,6 +278,17 @@ def test_bench_command_end_to_end_with_draco(mesh_dir, tmp_path):
     for name in ("rd_ball.png", "rd_block.png", "side_by_side_ball.png", "side_by_side_block.png"):
         width, height = _png_size(out / name)
         assert width > 300 and height > 200
+    for mesh in ("ball", "block"):
+        # the plot draws both families' curves in their colours (matplotlib's tab:blue and tab:orange)
+        plot = _rgb(out / f"rd_{mesh}.png")
+        for family in ("draco", "decimate+draco"):
+            colour = matplotlib.colors.to_rgb(report.CURVE_STYLE[family][0])
+            assert _count_near(plot, colour) > 50, (mesh, family)
+        # the pictures show shaded surfaces (grey, neither white nor black) in every one of their 3 panels
+        picture = _rgb(out / f"side_by_side_{mesh}.png")
+        grey = (picture.min(-1) > 0.15) & (picture.max(-1) < 0.9) & (np.ptp(picture, axis=-1) < 0.05)
+        columns = np.array_split(grey, 3, axis=1)
+        assert all(c.mean() > 0.02 for c in columns), [float(c.mean()) for c in columns]
     # progress went to stderr, one line per method and mesh
     assert result.output.count("draco q11:") == 2
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 import trimesh
@@ -75,9 +77,15 @@ def test_render_a_tw_file(tmp_path):
     path.write_bytes(tw_module.pack(tw))
     result = _run(str(path), "--views", "2", "--size", "40")
     assert result.exit_code == 0, result.output
+    # the decoded ball, normalized to radius ~0.9 and seen from distance 3 with a 45-degree field of view, is a disc
+    # of radius tan(asin(0.9 / 3)) / tan(22.5 deg) = 0.76 half-widths: pi 0.76^2 / 4 = 45 % of the view
+    radius = 20 * math.tan(math.asin(0.9 / 3)) / math.tan(math.radians(22.5))
+    yy, xx = np.mgrid[0:40, 0:40] + 0.5
+    dist = np.hypot(xx - 20, yy - 20)
     for tile in _tiles(tmp_path / "ball.tw.png", 40, 2):
         covered = (tile < 250).any(-1)
-        assert 0.2 < covered.mean() < 0.8
+        assert covered.mean() == pytest.approx(math.pi * radius**2 / 1600, abs=0.06)
+        assert covered[dist < radius - 2].all() and not covered[dist > radius + 2].any()
 
 
 @pytest.mark.parametrize(
