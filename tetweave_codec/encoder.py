@@ -147,7 +147,7 @@ def encode(
 
 def pack_result(result: FitResult, scale: float, offset: np.ndarray) -> bytes:
     """The `.tw` bytes of a fit: version 1 or 2 after `result.finish.version`."""
-    from tetweave_codec.formats.tw import TetWeaveFile, backend_flags, pack
+    from tetweave_codec.formats.tw import TetWeaveFile, TetWeaveFileV2, backend_flags, pack, pack_v2
 
     fin = result.finish
     offset = np.asarray(offset, dtype=np.float64)
@@ -163,7 +163,21 @@ def pack_result(result: FitResult, scale: float, offset: np.ndarray) -> bytes:
                 flags=backend_flags(result.backend),
             )
         )
-    raise NotImplementedError
+    q = fin.quantization
+    return pack_v2(
+        TetWeaveFileV2(
+            cells=fin.cells,
+            s_sym=fin.s_sym,
+            c_sym=fin.c_sym,
+            position_bits=q.position_bits,
+            s_step=q.s_step,
+            c_band_steps=tuple(q.c_band_steps[: result.sh_degree + 1]),
+            sh_degree=result.sh_degree,
+            scale=float(scale),
+            offset=offset,
+            flags=backend_flags(result.backend),
+        )
+    )
 
 
 def default_quantization(points: int, sh_degree: int) -> Quantization:
