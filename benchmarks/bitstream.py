@@ -29,8 +29,8 @@ import torch
 from tetweave_codec.cli.common import parse_count
 
 from tetweave_codec.decoder import decode, decode_detailed
-from tetweave_codec.encoder import default_quantization, pack_result
-from tetweave_codec.fit.config import QUALITY, FitConfig, Quantization
+from tetweave_codec.encoder import pack_result
+from tetweave_codec.fit.config import QUALITY, FitConfig, Quantization, default_quantization
 from tetweave_codec.fit.finish import finish
 from tetweave_codec.fit.loop import FitResult, deterministic_torch, main_stage, prepare, start
 from tetweave_codec.meshio import load_mesh, normalize
@@ -112,7 +112,7 @@ def run_mesh(path: Path, points: int, quality: str, sweep: list[Quantization], r
         params = start(normalized, faces, ctx)
         params = main_stage(params, ctx)
         base = time.perf_counter() - t0
-        variants = [None, default_quantization(points, config.sh_degree), *sweep]
+        variants = [None, default_quantization(points), *sweep]
         rows = []
         for quant in variants:
             row = _finish_and_measure(params, ctx, quant, base, vertices, faces, scale, offset, repeats)

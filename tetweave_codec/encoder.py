@@ -17,7 +17,7 @@ import numpy as np
 import torch
 
 from tetweave_codec.errors import InputError
-from tetweave_codec.fit.config import FitConfig, Quantization, schedule_for
+from tetweave_codec.fit.config import FitConfig, Quantization, default_quantization, schedule_for
 from tetweave_codec.fit.loop import FitResult, fit
 from tetweave_codec.fit.step import ProgressFn
 
@@ -92,7 +92,7 @@ def encode(
     quality: "fast", "default" or "best" (see fit.QUALITY); iters overrides its main+late iteration count.
     measure: compute the Chamfer distance between the input and the decoded mesh for `stats`.
     container_version: 2 (quantized, entropy-coded; default) or 1 (raw float16).
-    quantization: v2's position bits and steps; None = `default_quantization(points, sh_degree)`.
+    quantization: v2's position bits and steps; None = `fit.config.default_quantization(points)`.
     Deterministic: the same input, options, seed, device and thread count give the same bytes.
     """
     from tetweave_codec.decoder import decode
@@ -108,7 +108,7 @@ def encode(
     if container_version == 1:
         quantization = None
     elif quantization is None:
-        quantization = default_quantization(points, sh_degree)
+        quantization = default_quantization(points)
     schedule = schedule_for(quality, iters)
     dev = resolve_device(device)
 
@@ -178,8 +178,3 @@ def pack_result(result: FitResult, scale: float, offset: np.ndarray) -> bytes:
             flags=backend_flags(result.backend),
         )
     )
-
-
-def default_quantization(points: int, sh_degree: int) -> Quantization:
-    """Container v2's position bits and steps for a fit of `points` grid points (measured, see README)."""
-    return Quantization()
