@@ -4,10 +4,13 @@ from __future__ import annotations
 
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import click
 from tetweave_codec.cli.common import CountType, configure_torch, device_option, threads_option
+
+from tetweave_codec.fit.config import QUALITY
 
 STAGE_NAMES = {"main": "main stage", "late": "late stage"}
 
@@ -40,6 +43,25 @@ def _progress_bar(total: int):
     return bar, callback
 
 
+def _progress_lines(every_s: float = 10.0):
+    """Progress for logs (stderr not a terminal): one plain line per ~10 s with stage, iteration and ETA."""
+    state = {"t0": time.perf_counter(), "last": 0.0, "main_total": 0}
+
+    def callback(stage: str, done: int, stage_total: int, info: dict) -> None:
+        now = time.perf_counter() - state["t0"]
+        if stage == "main":
+            state["main_total"] = stage_total
+        if stage not in STAGE_NAMES or (now - state["last"] < every_s and done != stage_total):
+            return
+        state["last"] = now
+        text = f"{STAGE_NAMES[stage]} {done}/{stage_total}, loss {info.get('loss', 0.0):.4g}, {now:.0f}s elapsed"
+        if stage == "main" and done:
+            text += f", main stage ETA {now / done * (stage_total - done):.0f}s"
+        click.echo(f"tetweave encode: {text}", err=True)
+
+    return callback
+
+
 @click.command(context_settings={"show_default": True})
 @click.argument("mesh", type=click.Path(dir_okay=False, path_type=Path))
 @click.option(
@@ -57,13 +79,13 @@ def _progress_bar(total: int):
 )
 @click.option(
     "--sh-degree",
-    type=click.IntRange(0, 3),
-    default=1,
-    help="Degree of the directional distances: 0 is smallest, higher places vertices more freely.",
+    type=click.Choice(["none", "0", "1", "2", "3"]),
+    default="1",
+    help="Degree of the directional distances: none stores only s; higher places vertices more freely.",
 )
 @click.option(
     "--quality",
-    type=click.Choice(["fast", "default", "best"]),
+    type=click.Choice(list(QUALITY)),
     default="default",
     help="Iterations and render resolution of the fit.",
 )
@@ -73,6 +95,30 @@ def _progress_bar(total: int):
     default=None,
     help="Total iterations (main + late stage), overriding --quality's.",
 )
+@click.option(
+    "--format-version",
+    type=click.Choice(["1", "2"]),
+    default="2",
+    help="Container: 2 = quantized and entropy-coded, 1 = raw float16 (128 bits per point at SH degree 1).",
+)
+@click.option(
+    "--position-bits",
+    type=click.IntRange(6, 16),
+    default=None,
+    help="v2: grid cells per axis = 2^bits over [-1.2, 1.2]^3.  [default: 8 below 8k points, 9 below 32k, ...]",
+)
+@click.option(
+    "--s-step",
+    type=click.FloatRange(min=0, min_open=True),
+    default=None,
+    help="v2: quantization step of s (normalized frame).  [default: 7e-4 at 4k points, 3e-4 at 16k]",
+)
+@click.option(
+    "--c-step",
+    type=click.FloatRange(min=0, min_open=True),
+    default=None,
+    help="v2: quantization step of the SH coefficients (every band).  [default: 0.2]",
+)
 @device_option
 @click.option("--seed", type=int, default=0, help="Seed of every random choice: same seed, same bytes.")
 @threads_option
@@ -81,9 +127,13 @@ def encode(
     mesh: Path,
     output: Path | None,
     points: int,
-    sh_degree: int,
+    sh_degree: str,
     quality: str,
     iters: int | None,
+    format_version: str,
+    position_bits: int | None,
+    s_step: float | None,
+    c_step: float | None,
     device: str,
     seed: int,
     threads: int,
@@ -91,7 +141,7 @@ def encode(
 ) -> None:
     """Compress MESH (OBJ, PLY, STL, OFF, GLB) into a .tw file by fitting a TetWeave point cloud to it."""
     from tetweave_codec.encoder import encode as encode_mesh
-    from tetweave_codec.fit.config import schedule_for
+    from tetweave_codec.fit.config import default_quantization, schedule_for
     from tetweave_codec.meshio import load_mesh, write_bytes_atomic
 
     output = output or mesh.with_suffix(".tw")
@@ -100,33 +150,42 @@ def encode(
     dev = configure_torch(threads, device)
     vertices, faces = load_mesh(mesh)
     schedule = schedule_for(quality, iters)
+    degree = -1 if sh_degree == "none" else int(sh_degree)
+    quant = default_quantization(points)
+    if position_bits is not None:
+        quant = replace(quant, position_bits=position_bits)
+    if s_step is not None:
+        quant = replace(quant, s_step=s_step)
+    if c_step is not None:
+        quant = replace(quant, c_band_steps=(c_step,) * 4)
+    options = dict(
+        points=points,
+        sh_degree=degree,
+        quality=quality,
+        iters=iters,
+        device=dev,
+        seed=seed,
+        container_version=int(format_version),
+        quantization=quant,
+    )
     t0 = time.perf_counter()
     if quiet:
-        result = encode_mesh(
-            vertices, faces, points=points, sh_degree=sh_degree, quality=quality, iters=iters, device=dev, seed=seed
-        )
-    else:
+        result = encode_mesh(vertices, faces, **options)
+    elif sys.stderr.isatty():
         bar, callback = _progress_bar(schedule.main_iters + schedule.late_iters)
         with bar:
-            result = encode_mesh(
-                vertices,
-                faces,
-                points=points,
-                sh_degree=sh_degree,
-                quality=quality,
-                iters=iters,
-                device=dev,
-                seed=seed,
-                progress=callback,
-            )
+            result = encode_mesh(vertices, faces, progress=callback, **options)
+    else:
+        result = encode_mesh(vertices, faces, progress=_progress_lines(), **options)
     write_bytes_atomic(output, result.data)
     st = result.stats
     sec = st["seconds"]
     stages = ", ".join(f"{k} {v:.1f}s" for k, v in sec.items() if k != "total")
     chamfer = f"{st['chamfer']:.3g}" if st["chamfer"] is not None else "n/a"
     click.echo(
-        f"wrote {output} ({st['bytes']:,} bytes): {st['points_kept']:,} points kept of {points:,}, "
-        f"SH degree {sh_degree}, {st['vertices']:,} vertices, {st['faces']:,} faces"
+        f"wrote {output} ({st['bytes']:,} bytes, {8 * st['bytes'] / max(st['points_kept'], 1):.1f} bits per point, "
+        f".tw v{st['container_version']}): {st['points_kept']:,} points kept of {points:,}, SH degree {sh_degree}, "
+        f"{st['vertices']:,} vertices, {st['faces']:,} faces"
     )
     click.echo(f"Chamfer distance to the input (normalized frame): {chamfer}")
     click.echo(f"time {time.perf_counter() - t0:.1f}s on {st['device']} ({stages})")
