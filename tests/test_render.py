@@ -302,8 +302,11 @@ def test_views_render_independently_of_their_batch(device):
     all_views = render_maps(verts, faces, cams, 20)
     for part in (slice(0, 5), slice(50, 56)):
         some = render_maps(verts, faces, cams[part], 20)
-        assert torch.equal(all_views.mask[part], some.mask)
-        assert torch.equal(all_views.normals[part], some.normals)
+        assert torch.equal(all_views.fragments.face_id[part], some.fragments.face_id)
+        # Same pixels and blends; vectorized float64 sums over differently sized batches may differ in the last
+        # bit (seen: 1.8e-15 on 4 of 2,000 pixels with torch 2.13 on this CPU), far below any cross-talk.
+        torch.testing.assert_close(all_views.mask[part], some.mask, rtol=0, atol=1e-12)
+        torch.testing.assert_close(all_views.normals[part], some.normals, rtol=0, atol=1e-12)
 
 
 def test_chunking_does_not_change_the_image(device, monkeypatch):
