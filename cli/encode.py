@@ -105,7 +105,7 @@ def _progress_lines(every_s: float = 10.0):
     "--position-bits",
     type=click.IntRange(6, 16),
     default=None,
-    help="v2: grid cells per axis = 2^bits over [-1.2, 1.2]^3.  [default: 8 below 8k points, 9 below 32k, ...]",
+    help="v2: grid cells per axis = 2^bits over [-1.2, 1.2]^3.  [default: 9 below 8k points, 10 below 32k, ...]",
 )
 @click.option(
     "--s-step",

@@ -52,9 +52,11 @@ def info(file: Path, mesh: bool) -> None:
     """
     from tetweave_codec.formats import tw
 
+    from tetweave_codec.geometry.sh import num_coeffs
+
     data = read_tw_bytes(file)
     f = tw.unpack(data)
-    n, q = f.num_points, (f.sh_degree + 1) ** 2
+    n, q = f.num_points, num_coeffs(f.sh_degree)
     degree = "none (0 coefficients per point)" if f.sh_degree < 0 else f"{f.sh_degree} ({q} per point)"
     if f.version == 2:
         lines = _v2_lines(file, f, len(data), degree)

@@ -26,6 +26,7 @@ from __future__ import annotations
 import numpy as np
 
 from tetweave_codec.errors import ContainerError
+from tetweave_codec.geometry.sh import num_coeffs
 
 from . import entropy
 from .quantize import C_SYMBOL_LIMIT, S_SYMBOL_LIMIT
@@ -190,7 +191,7 @@ def encode_c(c_sym: np.ndarray, sh_degree: int) -> bytes:
 
 
 def decode_c(section: bytes, n: int, sh_degree: int) -> np.ndarray:
-    q = (sh_degree + 1) ** 2
+    q = num_coeffs(sh_degree)
     if n == 0 or q == 0:
         if section:
             raise ContainerError("invalid .tw payload: c data without coefficients")

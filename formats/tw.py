@@ -38,7 +38,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from tetweave_codec.errors import ContainerError
-from tetweave_codec.geometry.sh import SH_DEGREE_MAX, SH_DEGREE_NONE
+from tetweave_codec.geometry.sh import SH_DEGREE_MAX, SH_DEGREE_NONE, num_coeffs
 
 from .tw2 import TetWeaveFileV2, pack_v2, quantize_file  # noqa: F401 -- version 2, re-exported
 
@@ -101,7 +101,7 @@ class TetWeaveFile:
 
 def payload_size(num_points: int, sh_degree: int) -> int:
     """Raw payload size in bytes for N points and an SH degree: 2 * N * (4 + q)."""
-    return 2 * num_points * (4 + (sh_degree + 1) ** 2)
+    return 2 * num_points * (4 + num_coeffs(sh_degree))
 
 
 def pack(tw: TetWeaveFile) -> bytes:
@@ -109,7 +109,7 @@ def pack(tw: TetWeaveFile) -> bytes:
     degree = int(tw.sh_degree)
     if not SH_DEGREE_NONE <= degree <= SH_DEGREE_MAX:
         raise ValueError(f"sh_degree must be in {SH_DEGREE_NONE}..{SH_DEGREE_MAX}, got {degree}")
-    q = (degree + 1) ** 2
+    q = num_coeffs(degree)
     points = _as_f16(tw.points, "points")
     s = _as_f16(tw.s, "s")
     n = points.shape[0] if points.ndim == 2 else -1
@@ -209,7 +209,7 @@ def unpack(data: bytes | bytearray | memoryview) -> TetWeaveFile | TetWeaveFileV
             f"invalid .tw header: payload of {psize} bytes, {n} points at SH degree {degree} need "
             f"{payload_size(n, degree)}"
         )
-    q = (degree + 1) ** 2
+    q = num_coeffs(degree)
     arrays = np.frombuffer(buf, dtype="<f2", count=psize // 2, offset=HEADER_SIZE).astype(np.float16)
     points = arrays[: 3 * n].reshape(n, 3).copy()
     s = arrays[3 * n : 4 * n].copy()

@@ -20,6 +20,8 @@ from tetweave_codec.errors import InputError
 from tetweave_codec.fit.config import FitConfig, Quantization, default_quantization, schedule_for
 from tetweave_codec.fit.loop import FitResult, fit
 from tetweave_codec.fit.step import ProgressFn
+from tetweave_codec.geometry.sh import check_degree
+from tetweave_codec.geometry.triangles import face_areas
 
 DEFAULT_POINTS = 16384
 DEFAULT_SH_DEGREE = 1
@@ -62,8 +64,7 @@ def _validate(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.n
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
     validate_mesh(v, f)
-    tri = v[f]
-    if not np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1).any():
+    if not face_areas(v, f).any():
         raise InputError("mesh: every triangle has zero area")
     return v, f
 
@@ -101,8 +102,10 @@ def encode(
     v, f = _validate(vertices, faces)
     if not 64 <= points <= MAX_POINTS:
         raise InputError(f"points must be between 64 and {MAX_POINTS}, got {points}")
-    if sh_degree not in (-1, 0, 1, 2, 3):
-        raise InputError(f"SH degree must be -1 (none), 0, 1, 2 or 3, got {sh_degree}")
+    try:
+        check_degree(sh_degree)
+    except ValueError as exc:
+        raise InputError(f"{exc} (-1 = none)") from None
     if container_version not in (1, 2):
         raise InputError(f"container version must be 1 or 2, got {container_version}")
     if container_version == 1:

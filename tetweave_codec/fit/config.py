@@ -99,15 +99,14 @@ class Quantization:
 def default_quantization(points: int) -> Quantization:
     """Container v2's defaults for a fit of `points` grid points: a plain function of the options.
 
-    Measured with benchmarks/bitstream.py --sweep on spot (quantization-aware finish; Chamfer relative to the same
-    fit stored as v1): the position grid barely matters once s and c are refit on the snapped points (4K: b = 8 /
-    9 / 10 / 11 within 3 %), and each extra bit costs 3 bits per point, so b follows the point spacing (one bit
-    per 4x points): 4K -> b 8 (1.07x v1's error), 16K -> b 9 (1.04x). s steps: 4K 7e-4, 16K 3e-4 (2e-4 was 1.4 %
-    better for 0.6 more bits per point). c steps 0.2 (0.1 costs ~3 bits per point for 3 % at 4K; 0.3-0.4
-    loses 4-8 %).
+    Measured with benchmarks/bitstream.py (quantization-aware finish; Chamfer relative to the same fit stored as
+    v1). b follows the point spacing, one bit per 4x points: 4K -> 9, 16K -> 10. One bit less saves 3 bits per
+    point and costs 3-4 % of error on spot but 11-17 % on fandisk (sharp creases), above the 10 % this default
+    allows itself; rate control may trade it. s steps: 4K 7e-4, 16K 3e-4 (2e-4 was 1.4 % better for 0.6 more
+    bits per point). c steps 0.2 (0.1 costs ~3 bits per point for 3 % at 4K; 0.3-0.4 loses 4-8 %).
     """
     ratio = max(points, 1) / 4096.0
-    bits = int(min(16, max(6, math.floor(8.5 + 0.5 * math.log2(ratio)))))
+    bits = int(min(16, max(6, math.floor(9.5 + 0.5 * math.log2(ratio)))))
     return Quantization(position_bits=bits, s_step=7e-4 * ratio**-0.6, c_band_steps=(0.2, 0.2, 0.2, 0.2))
 
 
