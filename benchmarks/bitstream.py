@@ -89,7 +89,7 @@ def _finish_and_measure(params, ctx, quant, base_seconds, vertices, faces, scale
         "chamfer": cd,
         "encode_s": encode_s,
         "decode_ms": 1000 * statistics.median(times),
-        "streams": getattr(detail.container, "stream_sizes", None),
+        "streams": getattr(detail.container, "sizes", None),
         "quant": quant,
     }
     return row

@@ -96,6 +96,20 @@ def _progress_lines(every_s: float = 10.0):
     help="Total iterations (main + late stage), overriding --quality's.",
 )
 @click.option(
+    "--size",
+    type=CountType(),
+    default=None,
+    help="Rate control: write at most this many bytes (k = 1024, M = 1024k) and at least 85 % of it; "
+    "points and quantization are chosen to fit.",
+)
+@click.option(
+    "--max-error",
+    type=click.FloatRange(min=0, min_open=True),
+    default=None,
+    help="Rate control: the smallest file whose decoded mesh has a Chamfer distance to the input of at most this "
+    "(symmetric point-to-surface mean, input's bounding box scaled into [-0.9, 0.9]^3).",
+)
+@click.option(
     "--format-version",
     type=click.Choice(["1", "2"]),
     default="2",
@@ -105,7 +119,7 @@ def _progress_lines(every_s: float = 10.0):
     "--position-bits",
     type=click.IntRange(6, 16),
     default=None,
-    help="v2: grid cells per axis = 2^bits over [-1.2, 1.2]^3.  [default: 9 below 8k points, 10 below 32k, ...]",
+    help="v2: grid cells per axis = 2^bits over [-1.2, 1.2]^3.  [default: 8 at 4k points, one more per doubling]",
 )
 @click.option(
     "--s-step",
@@ -130,6 +144,8 @@ def encode(
     sh_degree: str,
     quality: str,
     iters: int | None,
+    size: int | None,
+    max_error: float | None,
     format_version: str,
     position_bits: int | None,
     s_step: float | None,
@@ -167,11 +183,13 @@ def encode(
         seed=seed,
         container_version=int(format_version),
         quantization=quant,
+        size=size,
+        max_error=max_error,
     )
     t0 = time.perf_counter()
     if quiet:
         result = encode_mesh(vertices, faces, **options)
-    elif sys.stderr.isatty():
+    elif sys.stderr.isatty() and size is None and max_error is None:  # rate control runs several fits
         bar, callback = _progress_bar(schedule.main_iters + schedule.late_iters)
         with bar:
             result = encode_mesh(vertices, faces, progress=callback, **options)
@@ -184,8 +202,13 @@ def encode(
     chamfer = f"{st['chamfer']:.3g}" if st["chamfer"] is not None else "n/a"
     click.echo(
         f"wrote {output} ({st['bytes']:,} bytes, {8 * st['bytes'] / max(st['points_kept'], 1):.1f} bits per point, "
-        f".tw v{st['container_version']}): {st['points_kept']:,} points kept of {points:,}, SH degree {sh_degree}, "
+        f".tw v{st['container_version']}): {st['points_kept']:,} points kept of {st['points_target']:,}, "
+        f"SH degree {sh_degree}, "
         f"{st['vertices']:,} vertices, {st['faces']:,} faces"
     )
     click.echo(f"Chamfer distance to the input (normalized frame): {chamfer}")
+    if "target_bytes" in st:
+        click.echo(f"size target {st['target_bytes']:,} bytes: wrote {st['bytes']:,} ({st['rate_control']})")
+    if "target_error" in st:
+        click.echo(f"error target {st['target_error']:.3g}: reached {chamfer} ({st['rate_control']})")
     click.echo(f"time {time.perf_counter() - t0:.1f}s on {st['device']} ({stages})")

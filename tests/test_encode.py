@@ -65,7 +65,9 @@ def test_fit_analytic_shapes(shape, threshold):
     assert_closed_manifold(result.vertices, result.faces)
     assert_exact_decode(result)
     cd = result.stats["chamfer"]
-    assert cd == pytest.approx(chamfer_distance(v, f, result.vertices, result.faces, n_samples=100_000), rel=1e-9)
+    # The summary's error is a sampled estimate of the decoded mesh's distance: other samples agree within 5 %.
+    other = chamfer_distance(v, f, result.vertices, result.faces, n_samples=100_000, seed=123)
+    assert cd == pytest.approx(other, rel=0.05)
     assert cd < threshold, f"Chamfer {cd:.3g} above {threshold:.3g}"
     assert result.stats["points_kept"] < 3072
     assert len(result.data) == result.stats["bytes"]
@@ -118,6 +120,29 @@ def test_two_components_encode():
 
     parts = trimesh.Trimesh(result.vertices, result.faces, process=False).split(only_watertight=False)
     assert len(parts) == 2
+    # Each piece is where its input was, with about its volume (sphere 0.524, cube 0.512).
+    parts = sorted(parts, key=lambda p: p.center_mass[0])
+    np.testing.assert_allclose(parts[0].center_mass, [-0.8, 0.0, 0.0], atol=0.05)
+    np.testing.assert_allclose(parts[1].center_mass, [0.8, 0.0, 0.0], atol=0.05)
+    assert parts[0].volume == pytest.approx(4 / 3 * np.pi * 0.125, rel=0.1)
+    assert parts[1].volume == pytest.approx(0.512, rel=0.1)
+
+
+def test_container_versions_and_no_sh():
+    """v2 (default) is far smaller than v1 for the same fit settings, both decode exactly to what encode reported,
+    and SH degree none (-1) stores no coefficients."""
+    v, f = torus()
+    v1 = encode(v, f, points=1024, sh_degree=1, quality="fast", iters=30, container_version=1)
+    v2 = encode(v, f, points=1024, sh_degree=1, quality="fast", iters=30)
+    assert v1.data[8:10] == b"\x01\x00" and v2.data[8:10] == b"\x02\x00"
+    assert len(v2.data) * 4 < len(v1.data)
+    assert v2.stats["chamfer"] < 1.3 * v1.stats["chamfer"]
+    for r in (v1, v2):
+        assert_exact_decode(r)
+        assert_closed_manifold(r.vertices, r.faces)
+    none = encode(v, f, points=1024, sh_degree=-1, quality="fast", iters=30)
+    assert_exact_decode(none)
+    assert none.stats["sh_degree"] == -1 and len(none.data) < len(v2.data)
 
 
 # ----------------------------------------------------------------------------------------------- bad input, CLI

@@ -18,8 +18,9 @@ import torch
 
 from tetweave_codec.errors import InputError
 from tetweave_codec.fit.config import FitConfig, Quantization, default_quantization, schedule_for
-from tetweave_codec.fit.loop import FitResult, fit
-from tetweave_codec.fit.step import ProgressFn
+from tetweave_codec.fit.finish import FinishResult, finish
+from tetweave_codec.fit.loop import FitResult, deterministic_torch
+from tetweave_codec.fit.step import FitContext, Params, ProgressFn, noop_progress
 from tetweave_codec.geometry.sh import check_degree
 from tetweave_codec.geometry.triangles import face_areas
 
@@ -84,6 +85,8 @@ def encode(
     measure: bool = True,
     container_version: int = 2,
     quantization: Quantization | None = None,
+    size: int | None = None,
+    max_error: float | None = None,
 ) -> EncodeResult:
     """Fit a TetWeave representation to a triangle mesh and return the `.tw` bytes and the decoded mesh.
 
@@ -94,11 +97,12 @@ def encode(
     measure: compute the Chamfer distance between the input and the decoded mesh for `stats`.
     container_version: 2 (quantized, entropy-coded; default) or 1 (raw float16).
     quantization: v2's position bits and steps; None = `fit.config.default_quantization(points)`.
+    size: rate control, the file is at most `size` bytes and at least 85 % of it (points and quantization are
+        chosen by rate_control.py; `points` and `quantization` are ignored).
+    max_error: rate control, the decoded mesh's Chamfer distance to the input (normalized frame, the summary's
+        metric) is at most `max_error`, at the smallest size rate control finds.
     Deterministic: the same input, options, seed, device and thread count give the same bytes.
     """
-    from tetweave_codec.decoder import decode
-    from tetweave_codec.meshio import normalize
-
     v, f = _validate(vertices, faces)
     if not 64 <= points <= MAX_POINTS:
         raise InputError(f"points must be between 64 and {MAX_POINTS}, got {points}")
@@ -108,44 +112,119 @@ def encode(
         raise InputError(f"{exc} (-1 = none)") from None
     if container_version not in (1, 2):
         raise InputError(f"container version must be 1 or 2, got {container_version}")
+    if (size is not None or max_error is not None) and container_version != 2:
+        raise InputError("--size and --max-error need container version 2")
+    if size is not None and max_error is not None:
+        raise InputError("give either a size or a maximum error, not both")
+    job = Job(v, f, sh_degree, schedule_for(quality, iters), quality, resolve_device(device), seed, init, progress)
+    if size is not None:
+        from tetweave_codec.rate_control import encode_to_size
+
+        return encode_to_size(job, int(size), measure=measure)
+    if max_error is not None:
+        from tetweave_codec.rate_control import encode_to_error
+
+        return encode_to_error(job, float(max_error))
     if container_version == 1:
         quantization = None
     elif quantization is None:
         quantization = default_quantization(points)
-    schedule = schedule_for(quality, iters)
-    dev = resolve_device(device)
+    ctx, params = job.main_stage(points, quantization)
+    with deterministic_torch():
+        fin = finish(params, ctx)
+    return job.result(fin, ctx, points, measure=measure)
 
-    t_start = time.perf_counter()
-    normalized, scale, offset = normalize(v)
-    config = FitConfig(
-        points=points, sh_degree=sh_degree, schedule=schedule, init=init, seed=seed, quantization=quantization
-    )
-    result = fit(normalized, f, config, device=dev, progress=progress)
 
-    t0 = time.perf_counter()
-    data = pack_result(result, scale, offset)
-    out_v, out_f = decode(data)
-    seconds = dict(result.stage_seconds)
-    seconds["extract"] = time.perf_counter() - t0
-    seconds["total"] = time.perf_counter() - t_start
-    stats = {
-        "bytes": len(data),
-        "points_kept": int(len(result.finish.s)),
-        "container_version": result.finish.version,
-        "points_target": points,
-        "sh_degree": sh_degree,
-        "quality": quality,
-        "device": str(dev),
-        "vertices": int(len(out_v)),
-        "faces": int(len(out_f)),
-        "seconds": seconds,
-        "chamfer": None,
-    }
-    if measure and len(out_f):
+class Job:
+    """One encode's fixed inputs (the mesh, its normalized frame, the fit settings) and the steps every encode
+    path shares: main stage, packing, decoding and the summary. Rate control (rate_control.py) runs several fits
+    of one Job."""
+
+    def __init__(self, v, f, sh_degree, schedule, quality, device, seed, init, progress):
+        from tetweave_codec.meshio import normalize
+
+        self.t_start = time.perf_counter()
+        self.v, self.f = v, f
+        self.normalized, self.scale, self.offset = normalize(v)
+        self.sh_degree, self.schedule, self.quality = sh_degree, schedule, quality
+        self.device, self.seed, self.init, self.progress = device, seed, init, progress
+        self.seconds: dict[str, float] = {}
+
+    def config(self, points: int, quantization: Quantization | None) -> FitConfig:
+        return FitConfig(
+            points=points,
+            sh_degree=self.sh_degree,
+            schedule=self.schedule,
+            init=self.init,
+            seed=self.seed,
+            quantization=quantization,
+        )
+
+    def main_stage(self, points: int, quantization: Quantization | None) -> tuple[FitContext, Params]:
+        """Targets, start and main stage of a fit at `points`; returns its context and parameters."""
+        from tetweave_codec.fit.loop import main_stage, prepare, start
+
+        with deterministic_torch():
+            config = self.config(points, quantization)
+            ctx = prepare(self.normalized, self.f, config, self.device, self.progress or noop_progress)
+            params = start(self.normalized, self.f, ctx)
+            t0 = time.perf_counter()
+            params = main_stage(params, ctx)
+            ctx.seconds["main"] = time.perf_counter() - t0
+        return ctx, params
+
+    def pack(self, fin: FinishResult, ctx: FitContext) -> bytes:
+        return pack_result(
+            FitResult(fin, self.sh_degree, ctx.backend, ctx.seconds, ctx.history), self.scale, self.offset
+        )
+
+    def chamfer(self, out_v: np.ndarray, out_f: np.ndarray) -> float:
+        """The summary's error: Chamfer distance to the input in its normalized frame (SUMMARY_CHAMFER_SAMPLES)."""
         from tetweave_codec.metrics import chamfer_distance
 
-        stats["chamfer"] = chamfer_distance(v, f, out_v, out_f, n_samples=SUMMARY_CHAMFER_SAMPLES, seed=seed)
-    return EncodeResult(data, out_v, out_f, stats)
+        if not len(out_f):
+            return float("inf")
+        return chamfer_distance(self.v, self.f, out_v, out_f, n_samples=SUMMARY_CHAMFER_SAMPLES, seed=self.seed)
+
+    def result(
+        self,
+        fin: FinishResult,
+        ctx: FitContext,
+        points: int,
+        *,
+        measure: bool = True,
+        data: bytes | None = None,
+        decoded: tuple[np.ndarray, np.ndarray] | None = None,
+        chamfer: float | None = None,
+        extra: dict | None = None,
+    ) -> EncodeResult:
+        """The EncodeResult of a finished fit: bytes, the decoder's mesh and the summary statistics."""
+        from tetweave_codec.decoder import decode
+
+        t0 = time.perf_counter()
+        data = self.pack(fin, ctx) if data is None else data
+        out_v, out_f = decode(data) if decoded is None else decoded
+        seconds = {**self.seconds, **ctx.seconds}
+        seconds["extract"] = time.perf_counter() - t0
+        seconds["total"] = time.perf_counter() - self.t_start
+        stats = {
+            "bytes": len(data),
+            "points_kept": int(len(fin.s)),
+            "container_version": fin.version,
+            "quantization": fin.quantization,
+            "points_target": points,
+            "sh_degree": self.sh_degree,
+            "quality": self.quality,
+            "device": str(self.device),
+            "vertices": int(len(out_v)),
+            "faces": int(len(out_f)),
+            "seconds": seconds,
+            "chamfer": chamfer,
+        }
+        stats.update(extra or {})
+        if measure and chamfer is None and len(out_f):
+            stats["chamfer"] = self.chamfer(out_v, out_f)
+        return EncodeResult(data, out_v, out_f, stats)
 
 
 def pack_result(result: FitResult, scale: float, offset: np.ndarray) -> bytes:

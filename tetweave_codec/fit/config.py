@@ -24,6 +24,7 @@ class Schedule:
     delaunay_every: int = 5  # paper's m
     resample_at: tuple[float, ...] = (0.15, 0.35, 0.55)  # fractions of the main stage
     start_fraction: float = 0.5  # initial points, as a fraction of the target count
+    settle_at: float = 0.6  # fraction of the main stage after which positions take LearningRates.points_settle
 
 
 # Iteration counts are far below the paper's 5000 + 2000: the SDF start begins near the answer, and the 3-D term
@@ -75,11 +76,16 @@ class LearningRates:
     points: float = 1e-4
     s: float = 5e-4
     c: float = 1e-3
+    # Position step once resampling is over (Schedule.settle_at): 25x the step before. With 1e-4 throughout, the
+    # points barely moved after the last resampling; with this, Chamfer at the same point count fell from
+    # 7.90e-4 to 5.53e-4 (spot 4K), 9.54e-4 to 3.99e-4 (fandisk 4K) and 2.24e-4 to 1.78e-4 (spot 16K), container
+    # v2 at the default quantization (1.25e-3 and 5e-3 were worse on spot 16K and fandisk 4K).
+    points_settle: float = 2.5e-3
 
     @classmethod
     def paper(cls) -> LearningRates:
         """The paper's step sizes (Appendix A)."""
-        return cls(points=3e-4, s=2e-3, c=3e-3)
+        return cls(points=3e-4, s=2e-3, c=3e-3, points_settle=3e-4)
 
 
 @dataclass(frozen=True)
@@ -99,14 +105,25 @@ class Quantization:
 def default_quantization(points: int) -> Quantization:
     """Container v2's defaults for a fit of `points` grid points: a plain function of the options.
 
-    Measured with benchmarks/bitstream.py (quantization-aware finish; Chamfer relative to the same fit stored as
-    v1). b follows the point spacing, one bit per 4x points: 4K -> 9, 16K -> 10. One bit less saves 3 bits per
-    point and costs 3-4 % of error on spot but 11-17 % on fandisk (sharp creases), above the 10 % this default
-    allows itself; rate control may trade it. s steps: 4K 7e-4, 16K 3e-4 (2e-4 was 1.4 % better for 0.6 more
-    bits per point). c steps 0.2 (0.1 costs ~3 bits per point for 3 % at 4K; 0.3-0.4 loses 4-8 %).
+    Measured with benchmarks/bitstream.py on the four development meshes (quantization-aware finish; error
+    relative to the same fit stored as v1, bits per kept point with headers):
+
+    ====  ====  ==========================================  ==========================================
+    grid  b     fandisk / igea / spot / bunny: bits         Chamfer / v1
+    ====  ====  ==========================================  ==========================================
+    4K    8     21.7 / 22.9 / 21.7 / 23.4                   1.17 / 1.06 / 1.07 / 1.05
+    4K    9     24.8 / 26.0 / 24.8 / 26.5                   1.13 / 1.04 / 1.05 / 1.02
+    16K   9     20.9 / 22.1 / 20.6 / -                      1.11 / 1.05 / 1.04 / -
+    16K   10    24.0 / 25.2 / 23.7 / -                      1.07 / 1.02 / 1.02 / -
+    ====  ====  ==========================================  ==========================================
+
+    Each grid bit costs 3 bits per point. The error falls about as 1/N with the point count N, so the grid that
+    keeps up with it refines by one bit per doubling: b = 8 + log2(N / 4K). s steps: 4K 7e-4, 16K 3e-4 (2e-4 was
+    1.4 % better for 0.6 more bits per point on spot). c steps 0.2 (0.1 costs ~3 bits per point for 3 % at 4K;
+    0.3-0.4 loses 4-8 %).
     """
     ratio = max(points, 1) / 4096.0
-    bits = int(min(16, max(6, math.floor(9.5 + 0.5 * math.log2(ratio)))))
+    bits = int(min(16, max(6, round(8 + math.log2(ratio)))))
     return Quantization(position_bits=bits, s_step=7e-4 * ratio**-0.6, c_band_steps=(0.2, 0.2, 0.2, 0.2))
 
 

@@ -40,6 +40,8 @@ class FinishResult:
     version 1: points (N,3), s (N,), c (N,q) are float16 arrays; cells, s_sym, c_sym are None.
     version 2: cells (N,3) int64 in canonical order, s_sym (N,) int64, c_sym (N,q) int64 and `quantization`;
     points (N,3), s (N,), c (N,q) are their dequantized float64 values.
+    latent_s (N,), latent_c (N,q): the late stage's float32 values before quantization (so that other steps can
+    be tried without another late stage, see `requantize`).
     """
 
     version: int
@@ -50,10 +52,35 @@ class FinishResult:
     cells: np.ndarray | None = None
     s_sym: np.ndarray | None = None
     c_sym: np.ndarray | None = None
+    latent_s: np.ndarray | None = None
+    latent_c: np.ndarray | None = None
+
+
+@dataclass
+class Finalized:
+    """The point set fixed to what the container stores, in storage order, before the late stage.
+
+    points (N,3) float64: exactly the positions the decoder triangulates. s (N,), c (N,q): latent values.
+    stored (N,3) float16 (v1) or cells (N,3) int64 in canonical order (v2).
+    """
+
+    points: np.ndarray
+    s: np.ndarray
+    c: np.ndarray
+    stored: np.ndarray | None = None
+    cells: np.ndarray | None = None
+    position_bits: int | None = None
 
 
 def finish(params: Params, ctx: FitContext) -> FinishResult:
     """Finalize the point set for the container and run the late stage. Raises TetweaveError with no surface."""
+    quant = ctx.config.quantization
+    return complete(finalize(params, ctx, None if quant is None else quant.position_bits), ctx, quant)
+
+
+def finalize(params: Params, ctx: FitContext, position_bits: int | None) -> Finalized:
+    """Keep the active points and fix them to the container's positions: float16 (position_bits None, v1) or the
+    2^b grid (v2; colliding points merged, first occurrence wins, canonical order)."""
     from tetweave_codec.errors import TetweaveError
 
     t0 = time.perf_counter()
@@ -62,30 +89,49 @@ def finish(params: Params, ctx: FitContext) -> FinishResult:
         keep = active_mask(grid.tets, params.s).cpu().numpy()
     points, s, c = params.numpy()
     points, s, c = points[keep], s[keep], c[keep]
-    quant = ctx.config.quantization
-    if quant is None:
+    cells = stored = None
+    if position_bits is None:
         stored = points.astype(np.float16)
         _, first = np.unique(stored.view(np.uint16).reshape(-1, 3), axis=0, return_index=True)
         first = np.sort(first)
-        stored, fixed = stored[first], stored[first].astype(np.float64)
+        stored = stored[first]
+        fixed = stored.astype(np.float64)
     else:
-        cells, first = Q.merge_collisions(Q.quantize_positions(points, quant.position_bits))
-        fixed = Q.dequantize_positions(cells, quant.position_bits)
+        cells, first = Q.merge_collisions(Q.quantize_positions(points, position_bits))
+        fixed = Q.dequantize_positions(cells, position_bits)
     if len(fixed) < 4:
         raise TetweaveError("the fit produced no surface (is the input a closed or nearly closed shape?)")
-    s, c = s[first], c[first]
-    ctx.seconds["finalize"] = time.perf_counter() - t0
+    ctx.seconds["finalize"] = ctx.seconds.get("finalize", 0.0) + time.perf_counter() - t0
+    return Finalized(fixed, s[first], c[first], stored, cells, position_bits)
 
+
+def complete(fin: Finalized, ctx: FitContext, quant: Quantization | None) -> FinishResult:
+    """The late stage on finalized points, then the stored values (float16 for v1, symbols for v2)."""
     t0 = time.perf_counter()
+    if quant is not None and quant.position_bits != fin.position_bits:
+        raise ValueError("the quantization's position bits differ from the finalized grid's")
     quantizer = None if quant is None else _Quantizer(quant, ctx.config.sh_degree)
-    s, c = late_stage(fixed, s, c, ctx, quantizer)
-    ctx.seconds["late"] = time.perf_counter() - t0
+    s, c = late_stage(fin.points, fin.s, fin.c, ctx, quantizer)
+    ctx.seconds["late"] = ctx.seconds.get("late", 0.0) + time.perf_counter() - t0
     if quant is None:
         s16, c16 = round_float16(s, c)
-        return FinishResult(1, stored, s16, c16)
+        return FinishResult(1, fin.stored, s16, c16, latent_s=s, latent_c=c)
+    return requantize(fin.points, fin.cells, s, c, quant, ctx.config.sh_degree)
+
+
+def requantize(
+    points: np.ndarray,
+    cells: np.ndarray,
+    s: np.ndarray,
+    c: np.ndarray,
+    quant: Quantization,
+    sh_degree: int,
+) -> FinishResult:
+    """A v2 FinishResult for latent s (N,), c (N,q) on fixed grid points with the steps of `quant` (no refit)."""
+    quantizer = _Quantizer(quant, sh_degree)
     s_sym, c_sym = quantizer.symbols(s, c)
     s_val, c_val = quantizer.values(s_sym, c_sym)
-    return FinishResult(2, fixed, s_val, c_val, quant, cells, s_sym, c_sym)
+    return FinishResult(2, points, s_val, c_val, quant, cells, s_sym, c_sym, latent_s=s, latent_c=c)
 
 
 class _Quantizer:

@@ -127,6 +127,7 @@ def main_stage(params: Params, ctx: FitContext) -> Params:
     """Optimize points, s and c; returns the final parameters (positions still free floats)."""
     sch = ctx.config.schedule
     events = _resample_events(sch, len(params.s), ctx.config.points)
+    settle_from = int(round(sch.settle_at * sch.main_iters / sch.delaunay_every)) * sch.delaunay_every
     grid = None
     for it in range(sch.main_iters):
         if it % sch.delaunay_every == 0 or grid is None:
@@ -134,6 +135,9 @@ def main_stage(params: Params, ctx: FitContext) -> Params:
             if it in events:
                 params = _resample(params, grid, events[it], ctx)
                 grid = triangulate(params.points, ctx.backend)
+            if it >= settle_from:
+                for group in params.opt_p.param_groups:
+                    group["lr"] = ctx.config.lr.points_settle
         views = ctx.random_views()
         period_end = (it + 1) % sch.delaunay_every == 0 or it + 1 == sch.main_iters
         loss, parts = regularized_loss(

@@ -1,0 +1,103 @@
+"""Rate control: --size and --max-error are honoured on small shapes; impossible targets fail cleanly."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+from tetweave_codec.cli.main import main
+
+from tetweave_codec import rate_control
+from tetweave_codec.decoder import decode
+from tetweave_codec.encoder import encode
+from tetweave_codec.errors import InputError
+
+manifold3d = pytest.importorskip("manifold3d")
+
+FAST = {"quality": "fast", "iters": 40, "device": "cpu", "seed": 0}
+
+
+def _mesh(m) -> tuple[np.ndarray, np.ndarray]:
+    mesh = m.to_mesh()
+    return np.asarray(mesh.vert_properties[:, :3], dtype=np.float64), np.asarray(mesh.tri_verts, dtype=np.int64)
+
+
+def csg_shape() -> tuple[np.ndarray, np.ndarray]:
+    box = manifold3d.Manifold.cube((2.0, 1.4, 1.0), center=True)
+    bite = manifold3d.Manifold.sphere(0.8, 48).translate((1.0, 0.7, 0.5))
+    return _mesh(box - bite)
+
+
+def sphere() -> tuple[np.ndarray, np.ndarray]:
+    return _mesh(manifold3d.Manifold.sphere(1.0, 48))
+
+
+def test_size_model_is_monotonic_and_inverts():
+    sizes = [500, 2000, 8000, 32000, 128000]
+    points = [rate_control.points_for_size(s) for s in sizes]
+    assert points == sorted(points) and len(set(points)) == len(points)
+    for s, n in zip(sizes, points, strict=True):
+        assert n * rate_control.bytes_per_point(n) == pytest.approx(rate_control.SIZE_AIM * s, rel=0.02)
+
+
+@pytest.mark.parametrize("size", [2500, 6000])
+def test_size_target_lands_in_the_band(size):
+    v, f = csg_shape()
+    result = encode(v, f, size=size, **FAST)
+    assert rate_control.SIZE_FLOOR * size <= len(result.data) <= size
+    assert result.stats["target_bytes"] == size and result.stats["bytes"] == len(result.data)
+    dv, df = decode(result.data)
+    np.testing.assert_array_equal(dv, result.vertices)
+    np.testing.assert_array_equal(df, result.faces)
+
+
+def test_max_error_target_is_met():
+    v, f = sphere()
+    target = 4e-3
+    result = encode(v, f, max_error=target, **FAST)
+    assert result.stats["chamfer"] <= target
+    assert result.stats["target_error"] == target
+    dv, df = decode(result.data)
+    np.testing.assert_array_equal(df, result.faces)
+
+
+@pytest.mark.parametrize(
+    "options,needle",
+    [
+        ({"size": 50}, "below the smallest"),
+        ({"size": 10**9}, "use --points"),
+        ({"max_error": 1e-9}, "out of reach"),
+        ({"size": 5000, "max_error": 1e-3}, "either"),
+        ({"size": 5000, "container_version": 1}, "version 2"),
+    ],
+)
+def test_impossible_targets_are_rejected(options, needle):
+    v, f = sphere()
+    with pytest.raises(InputError, match=needle):
+        encode(v, f, **{**FAST, **options})
+
+
+def test_cli_impossible_size_exits_2_without_output(tmp_path):
+    import trimesh
+
+    v, f = sphere()
+    src = tmp_path / "ball.ply"
+    trimesh.Trimesh(v, f, process=False).export(src)
+    out = tmp_path / "ball.tw"
+    res = CliRunner().invoke(main, ["encode", str(src), "-o", str(out), "--size", "50"])
+    assert res.exit_code == 2
+    assert "Traceback" not in res.output and "smallest" in res.output
+    assert not out.exists()
+
+
+def test_cli_size_reports_target(tmp_path):
+    import trimesh
+
+    v, f = csg_shape()
+    src = tmp_path / "part.ply"
+    trimesh.Trimesh(v, f, process=False).export(src)
+    out = tmp_path / "part.tw"
+    res = CliRunner().invoke(main, ["encode", str(src), "-o", str(out), "--size", "4k", "--iters", "40", "-q"])
+    assert res.exit_code == 0, res.output
+    assert "size target 4,096 bytes" in res.output
+    assert 0.85 * 4096 <= out.stat().st_size <= 4096
