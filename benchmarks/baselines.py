@@ -9,6 +9,7 @@ rates beats quantizing the full mesh harder (fewer vertices to code at a given e
 from __future__ import annotations
 
 import numpy as np
+
 from tetweave_codec.benchmarks.methods import DECIMATE_DRACO, DRACO, Method
 
 DRACO_BITS = (8, 10, 11, 12, 14, 16)

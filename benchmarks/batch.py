@@ -16,15 +16,15 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from tetweave_codec.benchmarks.methods import Method
 
+from tetweave_codec.benchmarks.methods import Method
 from tetweave_codec.metrics.common import MetricOptions
 from tetweave_codec.metrics.fidelity import prepare_reference
 from tetweave_codec.metrics.summary import evaluate, mesh_report
 
 # Result columns in CSV order. Distances are in the input's normalized frame (see tetweave_codec.metrics.fidelity).
 ID_COLUMNS = ["mesh", "family", "curve", "setting"]
-PARAM_COLUMNS = ["quantization_bits", "keep_fraction", "points", "sh_degree", "points_stored"]
+PARAM_COLUMNS = ["quantization_bits", "keep_fraction", "points", "target_bytes", "sh_degree", "points_stored"]
 SIZE_COLUMNS = ["bytes", "bits_per_vertex", "encode_s", "decode_s", "metrics_s"]
 FIDELITY_COLUMNS = [
     "chamfer",
@@ -88,6 +88,19 @@ def find_meshes(path: str | Path) -> list[Path]:
     if not found:
         raise InputError(f"{path}: no mesh files ({', '.join(sorted(MESH_FORMATS))})")
     return found
+
+
+# The development meshes, beside the repository (../shared/meshes); the speed and bitstream scripts default to them.
+DEFAULT_MESHES = Path(__file__).resolve().parent.parent.parent / "shared" / "meshes"
+
+
+def select_meshes(path: str | Path, only: str = "") -> list[Path]:
+    """`find_meshes(path)`, kept to the comma-separated file stems of `only` when given."""
+    paths = find_meshes(path)
+    if only:
+        keep = set(only.split(","))
+        paths = [p for p in paths if p.stem in keep]
+    return paths
 
 
 def mesh_labels(paths: Sequence[Path]) -> list[str]:

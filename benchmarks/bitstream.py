@@ -1,15 +1,15 @@
 """Container v1 against v2 on the same fit: bytes, bits per point per stream, Chamfer distance, encode and decode time.
 
     python -m tetweave_codec.benchmarks.bitstream [--meshes DIR] [--only spot,fandisk] [--points 4k,16k]
-                                                  [--quality default] [--threads N] [--repeats 5]
+                                                  [--quality default] [--threads N] [--repeats 11]
                                                   [--sweep "b=10,s=1e-3,c=0.2;b=11,..."]
 
 For each mesh and point count the main stage of the fit runs once; then the v1 finish (float16 positions, plain
 late stage) and the v2 finish (grid-snapped positions, quantization-aware late stage) each start from the same
-parameters and the same RNG state, so the two files differ only by the container and its finish. Encode time of a
-version = targets + init + main + its finish + packing. Decode time: median of `--repeats` full decodes of the
-file (unpack + entropy decoding + Delaunay + marching tets). Chamfer distance: the summary's metric (input's
-normalized frame, 100K samples per mesh, seed 0).
+parameters and the same RNG state, so the two files differ only by the container and its finish. Encode time
+of a version = targets + init + main + its finish + packing. Decode time: median of `--repeats` full decodes of
+the file (unpack + entropy decoding + Delaunay + marching tets), the files of one mesh decoded in turn. Chamfer
+distance: the summary's metric (input's normalized frame, 100K samples per mesh, seed 0).
 
 `--sweep` adds v2 finishes with other quantization settings (b = position bits, s = s step, c = one step for all
 SH bands, or c0/c1/... per band), to choose defaults from measurements.
@@ -26,8 +26,9 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from tetweave_codec.cli.common import parse_count
 
+from tetweave_codec.benchmarks.batch import DEFAULT_MESHES, select_meshes
+from tetweave_codec.cli.common import parse_count
 from tetweave_codec.decoder import decode, decode_detailed
 from tetweave_codec.encoder import pack_result
 from tetweave_codec.fit.config import QUALITY, FitConfig, Quantization, default_quantization
@@ -36,7 +37,6 @@ from tetweave_codec.fit.loop import FitResult, deterministic_torch, main_stage, 
 from tetweave_codec.meshio import load_mesh, normalize
 from tetweave_codec.metrics import chamfer_distance
 
-DEFAULT_MESHES = Path(__file__).resolve().parent.parent.parent / "shared" / "meshes"
 CHAMFER_SAMPLES = 100_000
 
 
@@ -63,7 +63,7 @@ def parse_sweep(text: str, sh_degree: int) -> list[Quantization]:
     return out
 
 
-def _finish_and_measure(params, ctx, quant, base_seconds, vertices, faces, scale, offset, repeats) -> dict:
+def _finish_and_measure(params, ctx, quant, base_seconds, vertices, faces, scale, offset) -> dict:
     state = ctx.generator.get_state()
     ctx.config = replace(ctx.config, quantization=quant)
     ctx.seconds = {}
@@ -73,33 +73,42 @@ def _finish_and_measure(params, ctx, quant, base_seconds, vertices, faces, scale
     data = pack_result(result, scale, offset)
     encode_s = base_seconds + time.perf_counter() - t0
     ctx.generator.set_state(state)
-    times = []
-    for _ in range(repeats):
-        t1 = time.perf_counter()
-        out_v, out_f = decode(data)
-        times.append(time.perf_counter() - t1)
+    out_v, out_f = decode(data)
     detail = decode_detailed(data)
     cd = chamfer_distance(vertices, faces, out_v, out_f, n_samples=CHAMFER_SAMPLES, seed=0) if len(out_f) else np.inf
     n = len(fin.s)
-    row = {
+    return {
         "version": fin.version,
+        "data": data,
         "bytes": len(data),
         "kept": n,
         "bpp": 8 * len(data) / n,
         "chamfer": cd,
         "encode_s": encode_s,
-        "decode_ms": 1000 * statistics.median(times),
         "streams": getattr(detail.container, "sizes", None),
         "quant": quant,
     }
-    return row
+
+
+def _time_decodes(rows: list[dict], repeats: int) -> None:
+    """Median decode time of each row's file, the files decoded in turn (round robin) so that a busy moment of
+    the machine costs all of them alike."""
+    times = [[] for _ in rows]
+    for _ in range(repeats):
+        for k, row in enumerate(rows):
+            t0 = time.perf_counter()
+            decode(row["data"])
+            times[k].append(time.perf_counter() - t0)
+    for row, ts in zip(rows, times, strict=True):
+        row["decode_ms"] = 1000 * statistics.median(ts)
 
 
 def _label(row: dict) -> str:
     q = row["quant"]
     if q is None:
         return "v1"
-    return f"v2 b={q.position_bits} s={q.s_step:g} c={'/'.join(f'{x:g}' for x in q.c_band_steps)}"
+    steps = {f"{x:.3g}" for x in q.c_band_steps}
+    return f"v2 b={q.position_bits} s={q.s_step:.3g} c={'/'.join(sorted(steps))}"
 
 
 def run_mesh(path: Path, points: int, quality: str, sweep: list[Quantization], repeats: int) -> list[dict]:
@@ -115,9 +124,10 @@ def run_mesh(path: Path, points: int, quality: str, sweep: list[Quantization], r
         variants = [None, default_quantization(points), *sweep]
         rows = []
         for quant in variants:
-            row = _finish_and_measure(params, ctx, quant, base, vertices, faces, scale, offset, repeats)
+            row = _finish_and_measure(params, ctx, quant, base, vertices, faces, scale, offset)
             row.update(mesh=path.stem, points=points)
             rows.append(row)
+    _time_decodes(rows, repeats)
     return rows
 
 
@@ -128,16 +138,13 @@ def main() -> None:
     ap.add_argument("--points", default="4k,16k")
     ap.add_argument("--quality", default="default", choices=list(QUALITY))
     ap.add_argument("--threads", type=int, default=0)
-    ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--repeats", type=int, default=11)
     ap.add_argument("--sweep", default="", help="extra v2 settings, e.g. 'b=10,s=1e-3,c=0.2;b=11'")
     args = ap.parse_args()
     if args.threads:
         torch.set_num_threads(args.threads)
     counts = [parse_count(p) for p in args.points.split(",")]
-    paths = sorted(p for p in args.meshes.iterdir() if p.suffix.lower() in (".ply", ".obj", ".stl", ".off", ".glb"))
-    if args.only:
-        keep = set(args.only.split(","))
-        paths = [p for p in paths if p.stem in keep]
+    paths = select_meshes(args.meshes, args.only)
     sweep = parse_sweep(args.sweep, 1)
     print(f"torch threads {torch.get_num_threads()}, quality {args.quality}, decode repeats {args.repeats}")
     print(

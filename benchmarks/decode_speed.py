@@ -66,6 +66,7 @@ def shell_points(n: int, seed: int = 0):
 
 def make_container(n: int, seed: int = 0) -> bytes:
     import numpy as np
+
     from tetweave_codec.formats.tw import TetWeaveFile, pack
 
     pts = shell_points(n, seed)

@@ -19,14 +19,14 @@ from dataclasses import replace
 from pathlib import Path
 
 import torch
-from tetweave_codec.cli.common import parse_count
 
+from tetweave_codec.benchmarks.batch import DEFAULT_MESHES, select_meshes
+from tetweave_codec.cli.common import parse_count
 from tetweave_codec.fit.config import QUALITY, FitConfig, LearningRates, Weights
 from tetweave_codec.fit.loop import fit
 from tetweave_codec.meshio import load_mesh, normalize
 from tetweave_codec.metrics.fidelity import chamfer_distance
 
-DEFAULT_MESHES = Path(__file__).resolve().parent.parent.parent / "shared" / "meshes"
 STAGES = ("targets", "init", "main", "finalize", "late", "extract")
 
 
@@ -77,10 +77,7 @@ def main() -> None:
     if args.threads:
         torch.set_num_threads(args.threads)
     counts = [parse_count(p) for p in args.points.split(",")]
-    paths = sorted(p for p in args.meshes.iterdir() if p.suffix.lower() in (".ply", ".obj", ".stl", ".off", ".glb"))
-    if args.only:
-        keep = set(args.only.split(","))
-        paths = [p for p in paths if p.stem in keep]
+    paths = select_meshes(args.meshes, args.only)
     print(f"torch threads {torch.get_num_threads()}, quality {args.quality}")
     head = (
         f"{'mesh':16} {'points':>6} "

@@ -21,13 +21,12 @@ from pathlib import Path
 
 import numpy as np
 
+from tetweave_codec.benchmarks.batch import DEFAULT_MESHES, find_meshes
 from tetweave_codec.decoder import mesh_from_points
 from tetweave_codec.fit.initialize import initial_state, random_state
 from tetweave_codec.meshio import load_mesh, normalize
 from tetweave_codec.metrics.fidelity import chamfer_distance
 
-DEFAULT_MESHES = Path(__file__).resolve().parent.parent.parent / "shared" / "meshes"
-MESH_SUFFIXES = (".ply", ".obj", ".stl", ".off", ".glb")
 # "sdf": initial_state; "random": the paper's start (random s); "sphere": its ball with s = |p| - 0.5
 INITS = ("sdf", "random", "sphere")
 
@@ -88,7 +87,7 @@ def _mesh_paths(args: list[str], directory: Path) -> list[Path]:
         return [Path(a) for a in args]
     if not directory.is_dir():
         raise SystemExit(f"no meshes given and {directory} does not exist")
-    return sorted(p for p in directory.iterdir() if p.suffix.lower() in MESH_SUFFIXES)
+    return find_meshes(directory)
 
 
 def main(argv: list[str] | None = None) -> int:

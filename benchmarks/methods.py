@@ -63,6 +63,7 @@ class TetweaveMethod(Method):
     """tetweave: fit with `tetweave_codec.encoder.encode`, rebuild with `tetweave_codec.decoder.decode`.
 
     points: grid points during the fit; sh_degree 0..3; quality/iters/device/seed as in `tetweave encode`.
+    size: a target file size in bytes (rate control, `tetweave encode --size`) instead of a point count.
     progress: optional fit progress callback, passed to the encoder unchanged.
     """
 
@@ -77,7 +78,9 @@ class TetweaveMethod(Method):
         device: str = "auto",
         seed: int = 0,
         progress: Callable | None = None,
+        size: int | None = None,
     ) -> None:
+        self.size = None if size is None else int(size)
         self.points = int(points)
         self.sh_degree = int(sh_degree)
         self.quality = quality
@@ -88,14 +91,16 @@ class TetweaveMethod(Method):
 
     @property
     def setting(self) -> str:
+        if self.size is not None:
+            return f"size {self.size} sh{self.sh_degree}"
         return f"{self.points} pts sh{self.sh_degree}"
 
     @property
     def curve(self) -> str:
-        return f"tetweave sh{self.sh_degree}"
+        return f"tetweave sh{self.sh_degree}" + (" --size" if self.size is not None else "")
 
     def params(self) -> dict:
-        return {"points": self.points, "sh_degree": self.sh_degree}
+        return {"points": self.points, "sh_degree": self.sh_degree, "target_bytes": self.size or ""}
 
     def encode(self, vertices: np.ndarray, faces: np.ndarray) -> bytes:
         from tetweave_codec.encoder import encode
@@ -111,7 +116,9 @@ class TetweaveMethod(Method):
             seed=self.seed,
             progress=self.progress,
             measure=False,  # the benchmark measures the decoded mesh itself
+            size=self.size,
         )
+        self.points_used = result.stats["points_target"]
         return result.data
 
     def decode(self, data: bytes) -> tuple[np.ndarray, np.ndarray]:
@@ -122,4 +129,7 @@ class TetweaveMethod(Method):
     def info(self, data: bytes) -> dict:
         from tetweave_codec.formats.tw import unpack
 
-        return {"points_stored": int(len(unpack(data).s))}
+        info = {"points_stored": int(len(unpack(data).s))}
+        if self.size is not None:  # rate control chose the grid points
+            info["points"] = getattr(self, "points_used", "")
+        return info

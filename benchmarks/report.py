@@ -15,9 +15,9 @@ from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
+
 from tetweave_codec.benchmarks.batch import COLUMNS, INPUT_FAMILY, MeshResult
 from tetweave_codec.benchmarks.methods import DECIMATE_DRACO, DRACO, FAMILIES, TETWEAVE
-
 from tetweave_codec.meshio import write_bytes_atomic
 from tetweave_codec.metrics.rate_distortion import bytes_at, pareto_front
 

@@ -12,15 +12,19 @@ import time
 from pathlib import Path
 
 import click
+
 from tetweave_codec.benchmarks.methods import DECIMATE_DRACO, DRACO, FAMILIES, TETWEAVE
 from tetweave_codec.cli.common import configure_torch, device_option, parse_count, threads_option
-
 from tetweave_codec.fit.config import QUALITY
 from tetweave_codec.geometry.sh import SH_DEGREE_MAX
 
 
 def _split(text: str) -> list[str]:
     return [t.strip() for t in str(text).split(",") if t.strip()]
+
+
+def _sizes(ctx, param, value: str) -> list[int]:
+    return _counts(ctx, param, value) if value.strip() else []
 
 
 def _counts(ctx, param, value: str) -> list[int]:
@@ -97,6 +101,7 @@ def _command_line(p: dict) -> str:
         args += [
             "--points",
             join(p["points"]),
+            *(["--sizes", join(p["sizes"])] if p["sizes"] else []),
             "--sh-degree",
             join(p["sh_degrees"]),
             "--quality",
@@ -132,8 +137,14 @@ def _command_line(p: dict) -> str:
 @click.option(
     "--points",
     default="8k,16k,32k",
-    callback=_counts,
-    help="tetweave grid point counts, comma-separated (k = 1024).",
+    callback=_sizes,
+    help="tetweave grid point counts, comma-separated (k = 1024); empty for none (then give --sizes).",
+)
+@click.option(
+    "--sizes",
+    default="",
+    callback=_sizes,
+    help="tetweave target file sizes in bytes (rate control, k = 1024), comma-separated; run besides --points.",
 )
 @click.option(
     "--sh-degree",
@@ -188,6 +199,7 @@ def bench(
     out_dir: Path,
     methods: list[str],
     points: list[int],
+    sizes: list[int],
     sh_degrees: list[int],
     quality: str,
     iters: int | None,
@@ -211,7 +223,6 @@ def bench(
     from tetweave_codec.benchmarks.baselines import decimate_draco_methods, draco_methods
     from tetweave_codec.benchmarks.batch import find_meshes, run_batch
     from tetweave_codec.benchmarks.methods import TetweaveMethod
-
     from tetweave_codec.metrics.common import MetricOptions
 
     paths = find_meshes(mesh_dir)
@@ -226,12 +237,16 @@ def bench(
         import torch
 
         torch.set_num_threads(threads)
+    if TETWEAVE in methods and not points and not sizes:
+        raise click.BadParameter("give tetweave --points or --sizes", param_hint="--points")
     method_list = []
     if DRACO in methods:
         method_list += draco_methods(draco_bits)
     if DECIMATE_DRACO in methods:
         method_list += decimate_draco_methods(keep, decimate_bits)
     if TETWEAVE in methods:
+        # A run is a point count, or a target size (rate control picks the points).
+        runs = [(n, None, f"{n} pts") for n in points] + [(0, s, f"size {s}") for s in sizes]
         method_list += [
             TetweaveMethod(
                 n,
@@ -240,10 +255,11 @@ def bench(
                 iters=iters,
                 device=device,
                 seed=seed,
-                progress=_fit_progress(say, f"tetweave {n} pts sh{d}"),
+                progress=_fit_progress(say, f"tetweave {label} sh{d}"),
+                size=s,
             )
             for d in sh_degrees
-            for n in points
+            for n, s, label in runs
         ]
     out_dir.mkdir(parents=True, exist_ok=True)
     options = MetricOptions.for_samples(samples, seed=seed)

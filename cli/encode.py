@@ -8,8 +8,8 @@ from dataclasses import replace
 from pathlib import Path
 
 import click
-from tetweave_codec.cli.common import CountType, configure_torch, device_option, threads_option
 
+from tetweave_codec.cli.common import CountType, configure_torch, device_option, threads_option
 from tetweave_codec.fit.config import QUALITY
 
 STAGE_NAMES = {"main": "main stage", "late": "late stage"}
@@ -119,19 +119,19 @@ def _progress_lines(every_s: float = 10.0):
     "--position-bits",
     type=click.IntRange(6, 16),
     default=None,
-    help="v2: grid cells per axis = 2^bits over [-1.2, 1.2]^3.  [default: 8 at 4k points, one more per doubling]",
+    help="v2: grid cells per axis = 2^bits over [-1.2, 1.2]^3.  [default: 9 at 4k points, one more per 4x points]",
 )
 @click.option(
     "--s-step",
     type=click.FloatRange(min=0, min_open=True),
     default=None,
-    help="v2: quantization step of s (normalized frame).  [default: 7e-4 at 4k points, 3e-4 at 16k]",
+    help="v2: quantization step of s (normalized frame).  [default: 5e-4 at 4k points, 2e-4 at 16k]",
 )
 @click.option(
     "--c-step",
     type=click.FloatRange(min=0, min_open=True),
     default=None,
-    help="v2: quantization step of the SH coefficients (every band).  [default: 0.2]",
+    help="v2: quantization step of the SH coefficients (every band).  [default: 0.3 at 4k points, 0.2 at 16k]",
 )
 @device_option
 @click.option("--seed", type=int, default=0, help="Seed of every random choice: same seed, same bytes.")

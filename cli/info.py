@@ -8,6 +8,7 @@ from pathlib import Path
 
 import click
 import numpy as np
+
 from tetweave_codec.cli.decode import echo_warnings, read_tw_bytes
 
 
@@ -51,7 +52,6 @@ def info(file: Path, mesh: bool) -> None:
     inside it (use --mesh for the surface's own box).
     """
     from tetweave_codec.formats import tw
-
     from tetweave_codec.geometry.sh import num_coeffs
 
     data = read_tw_bytes(file)

@@ -6,6 +6,7 @@ import time
 from pathlib import Path
 
 import click
+
 from tetweave_codec.cli.common import configure_torch, device_option, threads_option
 
 VIEWS_PER_PASS = 4  # views rendered together: bounds memory for big meshes and images

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 from scipy.spatial import cKDTree
+
 from tetweave_codec.benchmarks import report
 from tetweave_codec.benchmarks.baselines import (
     DRACO_COMPRESSION_LEVEL,
@@ -23,7 +24,6 @@ from tetweave_codec.benchmarks.baselines import (
 from tetweave_codec.benchmarks.batch import COLUMNS, find_meshes, mesh_labels, run_batch, run_mesh
 from tetweave_codec.benchmarks.methods import Method, TetweaveMethod
 from tetweave_codec.cli.main import main
-
 from tetweave_codec.meshio import save_mesh
 from tetweave_codec.metrics.common import MetricOptions
 from tetweave_codec.metrics.rate_distortion import bytes_at, pareto_front
@@ -337,6 +337,20 @@ def test_tetweave_method_through_the_batch():
     assert row["chamfer"] < 0.05
     v2, f2 = result.decoded[method.name]
     assert len(f2) == row["n_faces"]
+
+
+def test_tetweave_size_method_through_the_batch():
+    """A size target in the batch: the row records the target, the points rate control chose, and a file in the
+    band."""
+    v, f = sphere(0.8, 32)
+    method = TetweaveMethod(0, sh_degree=1, quality="fast", iters=12, device="cpu", seed=0, size=2500)
+    result = run_mesh("ball", v, f, [method], OPTIONS)
+    row = result.rows[1]
+    assert row["error"] == ""
+    assert row["setting"] == "size 2500 sh1" and row["target_bytes"] == 2500 and row["curve"].endswith("--size")
+    assert 0.85 * 2500 <= row["bytes"] <= 2500
+    assert row["points"] > 0 and 0 < row["points_stored"] <= row["points"]
+    assert row["watertight"] and row["two_manifold"]
 
 
 def test_picture_cameras_see_three_faces_of_a_box_and_close_up_on_its_surface():

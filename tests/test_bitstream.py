@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+
+from tetweave_codec.errors import ContainerError
 from tetweave_codec.formats import entropy, octree, tw
 from tetweave_codec.formats import quantize as Q
 from tetweave_codec.formats.tw2 import MAX_POINTS, TetWeaveFileV2, header_size, pack_v2, quantize_file, unpack_v2
-
-from tetweave_codec.errors import ContainerError
 from tetweave_codec.geometry.sh import num_coeffs
 
 
@@ -423,8 +423,8 @@ def test_empty_file_round_trip():
 
 def test_decode_and_info_read_version_2(tmp_path):
     from click.testing import CliRunner
-    from tetweave_codec.cli.info import info
 
+    from tetweave_codec.cli.info import info
     from tetweave_codec.decoder import decode_detailed, mesh_from_points
 
     rng = np.random.default_rng(0)

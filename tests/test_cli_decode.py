@@ -12,10 +12,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 from click.testing import CliRunner
-from tetweave_codec.cli.main import main
-from tetweave_codec.formats.tw import TetWeaveFile, pack
 
+from tetweave_codec.cli.main import main
 from tetweave_codec.decoder import decode as decode_bytes
+from tetweave_codec.formats.tw import TetWeaveFile, pack
 from tetweave_codec.meshio import load_mesh
 
 OFFSET = np.array([3.0, -1.0, 7.0])

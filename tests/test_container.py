@@ -9,11 +9,11 @@ import zlib
 
 import numpy as np
 import pytest
-from tetweave_codec.formats import tw
-from tetweave_codec.formats.tw import HEADER_SIZE, MAGIC, TetWeaveFile, backend_flags, pack, unpack
 
 from tetweave_codec.decoder import DecodeWarning, decode, decode_detailed, mesh_from_points
 from tetweave_codec.errors import ContainerError
+from tetweave_codec.formats import tw
+from tetweave_codec.formats.tw import HEADER_SIZE, MAGIC, TetWeaveFile, backend_flags, pack, unpack
 from tetweave_codec.geometry.delaunay import available_backends
 
 

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from click.testing import CliRunner
-from tetweave_codec.cli.main import main
 
+from tetweave_codec.cli.main import main
 from tetweave_codec.decoder import decode
 from tetweave_codec.encoder import encode
 from tetweave_codec.metrics import chamfer_distance, topology

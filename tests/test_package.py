@@ -60,9 +60,8 @@ def test_no_nested_copy_of_the_package():
 
 
 def test_the_container_class_is_the_one_the_decoder_uses():
-    from tetweave_codec.formats import tw
-
     from tetweave_codec.decoder import decode
+    from tetweave_codec.formats import tw
 
     points = np.random.default_rng(0).uniform(-1, 1, (300, 3))
     s = np.linalg.norm(points, axis=1) - 0.5

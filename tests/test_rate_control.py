@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from click.testing import CliRunner
-from tetweave_codec.cli.main import main
 
 from tetweave_codec import rate_control
+from tetweave_codec.cli.main import main
 from tetweave_codec.decoder import decode
 from tetweave_codec.encoder import encode
 from tetweave_codec.errors import InputError

@@ -9,6 +9,7 @@ import pytest
 import trimesh
 from click.testing import CliRunner
 from PIL import Image
+
 from tetweave_codec.cli.main import main
 
 

@@ -104,7 +104,7 @@ def encode(
     Deterministic: the same input, options, seed, device and thread count give the same bytes.
     """
     v, f = _validate(vertices, faces)
-    if not 64 <= points <= MAX_POINTS:
+    if size is None and max_error is None and not 64 <= points <= MAX_POINTS:
         raise InputError(f"points must be between 64 and {MAX_POINTS}, got {points}")
     try:
         check_degree(sh_degree)

@@ -105,26 +105,28 @@ class Quantization:
 def default_quantization(points: int) -> Quantization:
     """Container v2's defaults for a fit of `points` grid points: a plain function of the options.
 
-    Measured with benchmarks/bitstream.py on the four development meshes (quantization-aware finish; error
-    relative to the same fit stored as v1, bits per kept point with headers):
+    Chosen with benchmarks/bitstream.py --sweep (quantization-aware finish after the settle phase; bits per kept
+    point with headers; Chamfer relative to the same fit stored as v1):
 
-    ====  ====  ==========================================  ==========================================
-    grid  b     fandisk / igea / spot / bunny: bits         Chamfer / v1
-    ====  ====  ==========================================  ==========================================
-    4K    8     21.7 / 22.9 / 21.7 / 23.4                   1.17 / 1.06 / 1.07 / 1.05
-    4K    9     24.8 / 26.0 / 24.8 / 26.5                   1.13 / 1.04 / 1.05 / 1.02
-    16K   9     20.9 / 22.1 / 20.6 / -                      1.11 / 1.05 / 1.04 / -
-    16K   10    24.0 / 25.2 / 23.7 / -                      1.07 / 1.02 / 1.02 / -
-    ====  ====  ==========================================  ==========================================
+    =========  =====================  =====================  =====================
+    4K points  fandisk                spot                   stanford-bunny
+    =========  =====================  =====================  =====================
+    b 8        20.7 bits, 1.91x       20.9 bits, 1.10x       22.4 bits, 1.08x
+    b 9        23.6 bits, 1.61x       24.0 bits, 1.04x       25.4 bits, 1.05x
+    b 10       26.7 bits, 1.54x       27.0 bits, 1.05x       28.5 bits, 1.02x
+    b 9 s 4e-4 24.4 bits, 1.46x       24.7 bits, 1.04x       26.2 bits, 1.05x
+    b 9 c 0.3  22.4 bits, 1.67x       22.6 bits, 1.09x       23.9 bits, 1.06x
+    =========  =====================  =====================  =====================
 
-    Each grid bit costs 3 bits per point. The error falls about as 1/N with the point count N, so the grid that
-    keeps up with it refines by one bit per doubling: b = 8 + log2(N / 4K). s steps: 4K 7e-4, 16K 3e-4 (2e-4 was
-    1.4 % better for 0.6 more bits per point on spot). c steps 0.2 (0.1 costs ~3 bits per point for 3 % at 4K;
-    0.3-0.4 loses 4-8 %).
+    (s step 7e-4 and c step 0.2 unless given.) At 16K: fandisk b 9 / 10 / 11 (s 3e-4): 20.3 / 23.3 / 26.3 bits,
+    1.32x / 1.17x / 1.13x; b 10 with s 2e-4: 24.0 bits, 1.08x; spot b 9 / 10 / 11: 1.06x / 1.03x / 1.02x, s 2e-4
+    1.01x. Each grid bit costs 3 bits per point; s steps matter on CAD shapes (fandisk), whose fits are the most
+    accurate; c steps of 0.3 instead of 0.2 save 1.4 bits per point at 4K for 1-5 % of error.
     """
     ratio = max(points, 1) / 4096.0
-    bits = int(min(16, max(6, round(8 + math.log2(ratio)))))
-    return Quantization(position_bits=bits, s_step=7e-4 * ratio**-0.6, c_band_steps=(0.2, 0.2, 0.2, 0.2))
+    bits = int(min(16, max(6, math.floor(9.5 + 0.5 * math.log2(ratio)))))
+    c_step = 0.3 * ratio**-0.3
+    return Quantization(position_bits=bits, s_step=5e-4 * ratio**-0.66, c_band_steps=(c_step,) * 4)
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,74 @@
+"""Rate control on real meshes: does `--size S` land in [0.85 S, S] and `--max-error E` meet E, and at what cost?
+
+    python -m tetweave_codec.benchmarks.rate_control [--meshes DIR] [--only spot,fandisk] [--sizes 5k,10k,20k,40k]
+                                                     [--errors 2e-3,1e-3,5e-4] [--quality default] [--threads N]
+
+For each mesh and target: the file's bytes, the decoded mesh's Chamfer distance (the summary's metric: input's
+normalized frame, 100K samples, seed 0), the grid points rate control chose, whether the target was met, and the
+wall time against one fit at the chosen point count (timed on the same run) -- the issue's budget is 1.5x.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import torch
+
+from tetweave_codec.benchmarks.batch import DEFAULT_MESHES, select_meshes
+from tetweave_codec.cli.common import parse_count
+from tetweave_codec.encoder import encode
+from tetweave_codec.errors import InputError
+from tetweave_codec.fit.config import QUALITY
+from tetweave_codec.meshio import load_mesh
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--meshes", type=Path, default=DEFAULT_MESHES)
+    ap.add_argument("--only", default="", help="comma-separated mesh stems to run (default: all)")
+    ap.add_argument("--sizes", default="5k,10k,20k,40k")
+    ap.add_argument("--errors", default="2e-3,1e-3,5e-4")
+    ap.add_argument("--quality", default="default", choices=list(QUALITY))
+    ap.add_argument("--threads", type=int, default=0)
+    ap.add_argument("--no-reference", action="store_true", help="skip the one-fit reference timing")
+    args = ap.parse_args()
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    sizes = [parse_count(s) for s in args.sizes.split(",") if s]
+    errors = [float(e) for e in args.errors.split(",") if e]
+    paths = select_meshes(args.meshes, args.only)
+    print(f"torch threads {torch.get_num_threads()}, quality {args.quality}")
+    print("| mesh | target | bytes | Chamfer | points | met | time s | one fit s | ratio |")
+    print("|---|---|---:|---:|---:|---|---:|---:|---:|")
+    for path in paths:
+        v, f = load_mesh(path)
+        targets = [("size", s) for s in sizes] + [("max_error", e) for e in errors]
+        for kind, value in targets:
+            label = f"--size {value:,}" if kind == "size" else f"--max-error {value:g}"
+            t0 = time.perf_counter()
+            try:
+                r = encode(v, f, quality=args.quality, device="cpu", seed=0, **{kind: value})
+            except InputError as exc:
+                print(f"| {path.stem} | {label} | - | - | - | refused: {exc} | {time.perf_counter() - t0:.0f} | | |")
+                continue
+            wall = time.perf_counter() - t0
+            st = r.stats
+            met = 0.85 * value <= st["bytes"] <= value if kind == "size" else st["chamfer"] <= value
+            ref = ""
+            ratio = ""
+            if not args.no_reference:
+                t1 = time.perf_counter()
+                encode(v, f, points=st["points_target"], quality=args.quality, device="cpu", seed=0, measure=False)
+                ref_s = time.perf_counter() - t1
+                ref, ratio = f"{ref_s:.0f}", f"{wall / ref_s:.2f}"
+            print(
+                f"| {path.stem} | {label} | {st['bytes']:,} | {st['chamfer']:.3g} | {st['points_target']:,} | "
+                f"{'yes' if met else 'NO'} | {wall:.0f} | {ref} | {ratio} |",
+                flush=True,
+            )
+
+
+if __name__ == "__main__":
+    main()
