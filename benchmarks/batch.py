@@ -103,6 +103,29 @@ def select_meshes(path: str | Path, only: str = "") -> list[Path]:
     return paths
 
 
+def script_parser(description: str):
+    """The command line shared by the benchmark scripts: --meshes, --only, --quality, --threads."""
+    import argparse
+
+    from tetweave_codec.fit.config import QUALITY
+
+    ap = argparse.ArgumentParser(description=description, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--meshes", type=Path, default=DEFAULT_MESHES)
+    ap.add_argument("--only", default="", help="comma-separated mesh stems to run (default: all)")
+    ap.add_argument("--quality", default="default", choices=list(QUALITY))
+    ap.add_argument("--threads", type=int, default=0, help="torch CPU threads (0: torch's default)")
+    return ap
+
+
+def script_meshes(args) -> list[Path]:
+    """Apply --threads and return the meshes of --meshes / --only (see `script_parser`)."""
+    if args.threads:
+        import torch
+
+        torch.set_num_threads(args.threads)
+    return select_meshes(args.meshes, args.only)
+
+
 def mesh_labels(paths: Sequence[Path]) -> list[str]:
     """Unique, file-name-safe labels: the stem, or stem_ext when two files share a stem."""
     stems = [re.sub(r"[^A-Za-z0-9._+-]+", "_", p.stem) for p in paths]

@@ -18,7 +18,6 @@ Run it on a quiet machine: torch's threads slow down badly when other processes 
 
 from __future__ import annotations
 
-import argparse
 import statistics
 import time
 from dataclasses import replace
@@ -27,7 +26,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from tetweave_codec.benchmarks.batch import DEFAULT_MESHES, select_meshes
+from tetweave_codec.benchmarks.batch import script_meshes, script_parser
 from tetweave_codec.cli.common import parse_count
 from tetweave_codec.decoder import decode, decode_detailed
 from tetweave_codec.encoder import pack_result
@@ -132,19 +131,13 @@ def run_mesh(path: Path, points: int, quality: str, sweep: list[Quantization], r
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--meshes", type=Path, default=DEFAULT_MESHES)
-    ap.add_argument("--only", default="", help="comma-separated mesh stems to run (default: all)")
+    ap = script_parser(__doc__)
     ap.add_argument("--points", default="4k,16k")
-    ap.add_argument("--quality", default="default", choices=list(QUALITY))
-    ap.add_argument("--threads", type=int, default=0)
     ap.add_argument("--repeats", type=int, default=11)
     ap.add_argument("--sweep", default="", help="extra v2 settings, e.g. 'b=10,s=1e-3,c=0.2;b=11'")
     args = ap.parse_args()
-    if args.threads:
-        torch.set_num_threads(args.threads)
     counts = [parse_count(p) for p in args.points.split(",")]
-    paths = select_meshes(args.meshes, args.only)
+    paths = script_meshes(args)
     sweep = parse_sweep(args.sweep, 1)
     print(f"torch threads {torch.get_num_threads()}, quality {args.quality}, decode repeats {args.repeats}")
     print(

@@ -13,14 +13,12 @@ Run it on a quiet machine: torch's threads slow down badly when other processes 
 
 from __future__ import annotations
 
-import argparse
 import time
 from dataclasses import replace
-from pathlib import Path
 
 import torch
 
-from tetweave_codec.benchmarks.batch import DEFAULT_MESHES, select_meshes
+from tetweave_codec.benchmarks.batch import script_meshes, script_parser
 from tetweave_codec.cli.common import parse_count
 from tetweave_codec.fit.config import QUALITY, FitConfig, LearningRates, Weights
 from tetweave_codec.fit.loop import fit
@@ -66,18 +64,12 @@ def _paper_style(vertices, faces, points: int, budget_s: float, quality: str, se
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--meshes", type=Path, default=DEFAULT_MESHES)
-    ap.add_argument("--only", default="", help="comma-separated mesh stems to run (default: all)")
+    ap = script_parser(__doc__)
     ap.add_argument("--points", default="8k,16k,32k")
-    ap.add_argument("--quality", default="default", choices=list(QUALITY))
     ap.add_argument("--baseline", action="store_true", help="also run the paper-style fit in the same time")
-    ap.add_argument("--threads", type=int, default=0)
     args = ap.parse_args()
-    if args.threads:
-        torch.set_num_threads(args.threads)
     counts = [parse_count(p) for p in args.points.split(",")]
-    paths = select_meshes(args.meshes, args.only)
+    paths = script_meshes(args)
     print(f"torch threads {torch.get_num_threads()}, quality {args.quality}")
     head = (
         f"{'mesh':16} {'points':>6} "

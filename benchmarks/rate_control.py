@@ -10,35 +10,26 @@ wall time against one fit at the chosen point count (timed on the same run) -- t
 
 from __future__ import annotations
 
-import argparse
 import time
-from pathlib import Path
 
 import torch
 
-from tetweave_codec.benchmarks.batch import DEFAULT_MESHES, select_meshes
+from tetweave_codec.benchmarks.batch import script_meshes, script_parser
 from tetweave_codec.cli.common import parse_count
 from tetweave_codec.encoder import encode
 from tetweave_codec.errors import InputError
-from tetweave_codec.fit.config import QUALITY
 from tetweave_codec.meshio import load_mesh
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--meshes", type=Path, default=DEFAULT_MESHES)
-    ap.add_argument("--only", default="", help="comma-separated mesh stems to run (default: all)")
+    ap = script_parser(__doc__)
     ap.add_argument("--sizes", default="5k,10k,20k,40k")
     ap.add_argument("--errors", default="2e-3,1e-3,5e-4")
-    ap.add_argument("--quality", default="default", choices=list(QUALITY))
-    ap.add_argument("--threads", type=int, default=0)
     ap.add_argument("--no-reference", action="store_true", help="skip the one-fit reference timing")
     args = ap.parse_args()
-    if args.threads:
-        torch.set_num_threads(args.threads)
     sizes = [parse_count(s) for s in args.sizes.split(",") if s]
     errors = [float(e) for e in args.errors.split(",") if e]
-    paths = select_meshes(args.meshes, args.only)
+    paths = script_meshes(args)
     print(f"torch threads {torch.get_num_threads()}, quality {args.quality}")
     print("| mesh | target | bytes | Chamfer | points | met | time s | one fit s | ratio |")
     print("|---|---|---:|---:|---:|---|---:|---:|---:|")

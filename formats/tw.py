@@ -40,30 +40,17 @@ import numpy as np
 from tetweave_codec.errors import ContainerError
 from tetweave_codec.geometry.sh import SH_DEGREE_MAX, SH_DEGREE_NONE, num_coeffs
 
+from .common import CHECKSUM_SIZE, FLAG_QHULL, KNOWN_FLAGS, MAGIC, backend_flags, checked_fields  # noqa: F401
 from .tw2 import TetWeaveFileV2, pack_v2, quantize_file  # noqa: F401 -- version 2, re-exported
 
-MAGIC = b"\x89TWV\r\n\x1a\n"
 VERSION = 1
 HEADER_FORMAT = "<8sHHIIbBHd3dQ"
 HEADER_SIZE = struct.calcsize(HEADER_FORMAT)  # 64
-CHECKSUM_SIZE = 4
 CODEC_RAW = 0
-
-FLAG_QHULL = 1 << 0  # the encoder's Delaunay backend was Qhull (else TetGen)
-KNOWN_FLAGS = FLAG_QHULL
 
 MAX_POINTS = 2**32 - 1
 
 assert HEADER_SIZE == 64
-
-
-def backend_flags(backend: str) -> int:
-    """Flags bits recording the Delaunay backend ("tetgen" or "qhull")."""
-    if backend == "tetgen":
-        return 0
-    if backend == "qhull":
-        return FLAG_QHULL
-    raise ValueError(f"unknown Delaunay backend {backend!r}")
 
 
 @dataclass(frozen=True, eq=False)
@@ -122,15 +109,7 @@ def pack(tw: TetWeaveFile) -> bytes:
         raise ValueError(f"c must be ({n}, {q}) for SH degree {degree}, got {c.shape}")
     if n > MAX_POINTS:
         raise ValueError(f"at most {MAX_POINTS} points fit a .tw file")
-    scale = float(tw.scale)
-    offset = np.asarray(tw.offset, dtype=np.float64).reshape(-1)
-    if not (np.isfinite(scale) and scale > 0):
-        raise ValueError(f"scale must be finite and > 0, got {scale}")
-    if offset.shape != (3,) or not np.isfinite(offset).all():
-        raise ValueError("offset must be 3 finite numbers")
-    flags = int(tw.flags)
-    if flags & ~KNOWN_FLAGS or flags < 0:
-        raise ValueError(f"unknown flags 0x{flags:x}")
+    scale, offset, flags = checked_fields(tw.scale, tw.offset, tw.flags)
     if tw.codec != CODEC_RAW:
         raise ValueError(f"payload codec {tw.codec} is not implemented (only {CODEC_RAW} = raw)")
     payload = b"".join(a.astype("<f2").tobytes() for a in (points, s, c))

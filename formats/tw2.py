@@ -37,14 +37,11 @@ from tetweave_codec.geometry.sh import SH_DEGREE_MAX, SH_DEGREE_NONE, num_coeffs
 
 from . import attributes, octree
 from . import quantize as Q
+from .common import CHECKSUM_SIZE, FLAG_QHULL, KNOWN_FLAGS, MAGIC, checked_fields
 
-MAGIC = b"\x89TWV\r\n\x1a\n"
 VERSION = 2
 FIXED_FORMAT = "<8sHBbBI4df"
 FIXED_SIZE = struct.calcsize(FIXED_FORMAT)  # 53
-CHECKSUM_SIZE = 4
-FLAG_QHULL = 1 << 0
-KNOWN_FLAGS = FLAG_QHULL
 MAX_POINTS = 2**22  # format limit: entropy-coded points have no minimum size, so N bounds every allocation
 SECTIONS = ("positions", "s", "c")
 
@@ -183,15 +180,7 @@ def pack_v2(f: TetWeaveFileV2) -> bytes:
     band_steps = [Q.stored_step(x) for x in np.asarray(f.c_band_steps, dtype=np.float64).reshape(-1)]
     if len(band_steps) != degree + 1:
         raise ValueError(f"need {degree + 1} c band steps for SH degree {degree}, got {len(band_steps)}")
-    scale = float(f.scale)
-    offset = np.asarray(f.offset, dtype=np.float64).reshape(-1)
-    if not (np.isfinite(scale) and scale > 0):
-        raise ValueError(f"scale must be finite and > 0, got {scale}")
-    if offset.shape != (3,) or not np.isfinite(offset).all():
-        raise ValueError("offset must be 3 finite numbers")
-    flags = int(f.flags)
-    if flags & ~KNOWN_FLAGS or flags < 0:
-        raise ValueError(f"unknown flags 0x{flags:x}")
+    scale, offset, flags = checked_fields(f.scale, f.offset, f.flags)
     models, words = octree.encode(cells, bits)
     sections = (models + words, attributes.encode_s(s_sym), attributes.encode_c(c_sym, degree) if n else b"")
     header = struct.pack(FIXED_FORMAT, MAGIC, VERSION, flags, degree, bits, n, scale, *offset, s_step)

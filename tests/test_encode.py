@@ -142,7 +142,11 @@ def test_container_versions_and_no_sh():
         assert_closed_manifold(r.vertices, r.faces)
     none = encode(v, f, points=1024, sh_degree=-1, quality="fast", iters=30)
     assert_exact_decode(none)
-    assert none.stats["sh_degree"] == -1 and len(none.data) < len(v2.data)
+    from tetweave_codec.formats.tw import unpack
+
+    stored = unpack(none.data)
+    assert none.stats["sh_degree"] == -1 and stored.sh_degree == -1
+    assert stored.c.shape == (stored.num_points, 0) and stored.sizes["c"] == 0
 
 
 # ----------------------------------------------------------------------------------------------- bad input, CLI

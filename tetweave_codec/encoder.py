@@ -232,20 +232,16 @@ def pack_result(result: FitResult, scale: float, offset: np.ndarray) -> bytes:
     from tetweave_codec.formats.tw import TetWeaveFile, TetWeaveFileV2, backend_flags, pack, pack_v2
 
     fin = result.finish
-    offset = np.asarray(offset, dtype=np.float64)
+    shared = {
+        "sh_degree": result.sh_degree,
+        "scale": float(scale),
+        "offset": np.asarray(offset, dtype=np.float64),
+        "flags": backend_flags(result.backend),
+    }
     if fin.version == 1:
-        return pack(
-            TetWeaveFile(
-                points=fin.points,
-                s=fin.s,
-                c=fin.c,
-                sh_degree=result.sh_degree,
-                scale=float(scale),
-                offset=offset,
-                flags=backend_flags(result.backend),
-            )
-        )
+        return pack(TetWeaveFile(points=fin.points, s=fin.s, c=fin.c, **shared))
     q = fin.quantization
+    steps = tuple(q.c_band_steps[: result.sh_degree + 1])
     return pack_v2(
         TetWeaveFileV2(
             cells=fin.cells,
@@ -253,10 +249,7 @@ def pack_result(result: FitResult, scale: float, offset: np.ndarray) -> bytes:
             c_sym=fin.c_sym,
             position_bits=q.position_bits,
             s_step=q.s_step,
-            c_band_steps=tuple(q.c_band_steps[: result.sh_degree + 1]),
-            sh_degree=result.sh_degree,
-            scale=float(scale),
-            offset=offset,
-            flags=backend_flags(result.backend),
+            c_band_steps=steps,
+            **shared,
         )
     )
