@@ -14,8 +14,14 @@ from pathlib import Path
 import click
 
 from tetweave_codec.benchmarks.methods import DECIMATE_DRACO, DRACO, FAMILIES, TETWEAVE
-from tetweave_codec.cli.common import configure_torch, device_option, parse_count, threads_option
-from tetweave_codec.fit.config import QUALITY
+from tetweave_codec.cli.common import (
+    configure_torch,
+    device_option,
+    iters_option,
+    parse_count,
+    quality_option,
+    threads_option,
+)
 from tetweave_codec.geometry.sh import SH_DEGREE_MAX
 
 
@@ -153,18 +159,8 @@ def _command_line(p: dict) -> str:
     callback=_ints(0, SH_DEGREE_MAX),
     help="tetweave SH degrees, comma-separated; every degree runs at every --points.",
 )
-@click.option(
-    "--quality",
-    type=click.Choice(list(QUALITY)),
-    default="default",
-    help="tetweave fit quality (iterations and render resolution).",
-)
-@click.option(
-    "--iters",
-    type=click.IntRange(min=2),
-    default=None,
-    help="tetweave total iterations, overriding --quality's.",
-)
+@quality_option
+@iters_option
 @click.option(
     "--draco-bits",
     default="8,10,11,12,14,16",

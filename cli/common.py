@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import click
 
+from tetweave_codec.fit.config import QUALITY
+
 threads_option = click.option(
     "--threads",
     type=click.IntRange(min=0),
@@ -18,6 +20,21 @@ device_option = click.option(
     default="auto",
     show_default=True,
     help="Where torch runs: auto picks CUDA when present.",
+)
+
+# The fit's schedule, shared by `encode` and `bench`: preset and total iterations.
+quality_option = click.option(
+    "--quality",
+    type=click.Choice(list(QUALITY)),
+    default="default",
+    show_default=True,
+    help="Iterations and render resolution of the fit.",
+)
+iters_option = click.option(
+    "--iters",
+    type=click.IntRange(min=2),
+    default=None,
+    help="Total iterations of the fit (main + late stage), overriding --quality's.",
 )
 
 

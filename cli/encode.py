@@ -9,8 +9,14 @@ from pathlib import Path
 
 import click
 
-from tetweave_codec.cli.common import CountType, configure_torch, device_option, threads_option
-from tetweave_codec.fit.config import QUALITY
+from tetweave_codec.cli.common import (
+    CountType,
+    configure_torch,
+    device_option,
+    iters_option,
+    quality_option,
+    threads_option,
+)
 
 STAGE_NAMES = {"main": "main stage", "late": "late stage"}
 
@@ -83,18 +89,8 @@ def _progress_lines(every_s: float = 10.0):
     default="1",
     help="Degree of the directional distances: none stores only s; higher places vertices more freely.",
 )
-@click.option(
-    "--quality",
-    type=click.Choice(list(QUALITY)),
-    default="default",
-    help="Iterations and render resolution of the fit.",
-)
-@click.option(
-    "--iters",
-    type=click.IntRange(min=2),
-    default=None,
-    help="Total iterations (main + late stage), overriding --quality's.",
-)
+@quality_option
+@iters_option
 @click.option(
     "--size",
     type=CountType(),
