@@ -72,8 +72,8 @@ def _finish_and_measure(params, ctx, quant, base_seconds, vertices, faces, scale
     data = pack_result(result, scale, offset)
     encode_s = base_seconds + time.perf_counter() - t0
     ctx.generator.set_state(state)
-    out_v, out_f = decode(data)
     detail = decode_detailed(data)
+    out_v, out_f = detail.vertices, detail.faces
     cd = chamfer_distance(vertices, faces, out_v, out_f, n_samples=CHAMFER_SAMPLES, seed=0) if len(out_f) else np.inf
     n = len(fin.s)
     return {

@@ -19,6 +19,11 @@ def backend_flags(backend: str) -> int:
     raise ValueError(f"unknown Delaunay backend {backend!r}")
 
 
+def backend_name(flags: int) -> str:
+    """The Delaunay backend ("tetgen" or "qhull") recorded in a file's flags; the decoder must use the same."""
+    return "qhull" if flags & FLAG_QHULL else "tetgen"
+
+
 def checked_fields(scale, offset, flags) -> tuple[float, np.ndarray, int]:
     """scale (float > 0), offset (3,) float64 and flags as a writer stores them; ValueError when invalid."""
     scale = float(scale)

@@ -40,7 +40,15 @@ import numpy as np
 from tetweave_codec.errors import ContainerError
 from tetweave_codec.geometry.sh import SH_DEGREE_MAX, SH_DEGREE_NONE, num_coeffs
 
-from .common import CHECKSUM_SIZE, FLAG_QHULL, KNOWN_FLAGS, MAGIC, backend_flags, checked_fields  # noqa: F401
+from .common import (  # noqa: F401 -- re-exported for readers of version 1
+    CHECKSUM_SIZE,
+    FLAG_QHULL,
+    KNOWN_FLAGS,
+    MAGIC,
+    backend_flags,
+    backend_name,
+    checked_fields,
+)
 from .tw2 import TetWeaveFileV2, pack_v2, quantize_file  # noqa: F401 -- version 2, re-exported
 
 VERSION = 1
@@ -83,7 +91,7 @@ class TetWeaveFile:
     @property
     def backend(self) -> str:
         """Delaunay backend the encoder used ("tetgen" or "qhull"); the decoder must use the same."""
-        return "qhull" if self.flags & FLAG_QHULL else "tetgen"
+        return backend_name(self.flags)
 
 
 def payload_size(num_points: int, sh_degree: int) -> int:

@@ -37,7 +37,7 @@ from tetweave_codec.geometry.sh import SH_DEGREE_MAX, SH_DEGREE_NONE, num_coeffs
 
 from . import attributes, octree
 from . import quantize as Q
-from .common import CHECKSUM_SIZE, FLAG_QHULL, KNOWN_FLAGS, MAGIC, checked_fields
+from .common import CHECKSUM_SIZE, KNOWN_FLAGS, MAGIC, backend_name, checked_fields
 
 VERSION = 2
 FIXED_FORMAT = "<8sHBbBI4df"
@@ -88,7 +88,7 @@ class TetWeaveFileV2:
 
     @property
     def backend(self) -> str:
-        return "qhull" if self.flags & FLAG_QHULL else "tetgen"
+        return backend_name(self.flags)
 
     @cached_property
     def points(self) -> np.ndarray:
