@@ -13,6 +13,13 @@ s stream -- models: 4 sign bytes, then a histogram (1 length byte A, A bytes) of
 3. the ``e - 1`` bits of ``m - 2**(e - 1)`` below the leading one (points with e >= 2) as fair bits, bit planes
    from the most significant: plane p codes bit p of every point with ``e - 1 > p``, in point order.
 
+s stream with prediction (flag bit 1 of the header; formats/predict.py) -- models: one histogram (A, A bytes) of
+residual buckets. The residuals ``r = k - prediction`` of all points in order:
+
+1. bucket ``e = bit_length(|r|)`` (0..22) with the histogram model;
+2. the sign of each nonzero residual as a fair bit (1 = negative);
+3. the raw bits below the leading one, bit planes as above.
+
 c stream -- models: one histogram (A, A bytes) per SH band l = 0..d. For each band, the symbols of the band's
 coefficients in coefficient-major order (all points of coefficient l*l, then l*l + 1, ...):
 
@@ -28,10 +35,11 @@ import numpy as np
 from tetweave_codec.errors import ContainerError
 from tetweave_codec.geometry.sh import num_coeffs
 
-from . import entropy
+from . import entropy, predict
 from .quantize import C_SYMBOL_LIMIT, S_SYMBOL_LIMIT
 
 S_BUCKETS = 21  # bit_length(m) for m < 2**20
+R_BUCKETS = 23  # bit_length(|r|) for residuals |r| < 2**21 + 1 (both symbols in [-2**20, 2**20))
 C_BUCKETS = 17  # bit_length(|k|) for |k| <= 2**15
 SIGN_MODEL_MIN, SIGN_MODEL_MAX = 8, 248
 
@@ -161,6 +169,54 @@ def decode_s(section: bytes, n: int) -> np.ndarray:
     return np.where(t == 1, -m - 1, m)
 
 
+def _encode_signed(v: np.ndarray, alphabet: int, w: entropy.Writer) -> bytes:
+    """Bucket (histogram model, returned as model bytes), sign of nonzero values (fair), raw bits of signed ints."""
+    m = np.abs(v)
+    e = bit_length(m)
+    hist = _fit_trimmed(e, alphabet)
+    w.encode(e, entropy.histogram_model(hist))
+    w.encode((v[m > 0] < 0).astype(np.int64), entropy.fair_bit())
+    w.encode_raw(*_raw_bits(m, e))
+    return _histogram_bytes(hist)
+
+
+def _decode_signed(hist: np.ndarray, count: int, r: entropy.Reader) -> np.ndarray:
+    e = r.decode(entropy.histogram_model(hist), count)
+    nonzero = e > 0
+    neg = r.decode(entropy.fair_bit(), int(nonzero.sum()))
+    m = _from_raw(r.decode_raw(np.maximum(e - 1, 0)), e)
+    sign = np.ones(len(m), dtype=np.int64)
+    sign[np.flatnonzero(nonzero)[neg == 1]] = -1
+    return sign * m
+
+
+def encode_s_predicted(s_sym: np.ndarray, cells: np.ndarray) -> bytes:
+    """s section coded as residuals of the neighbour prediction (flag bit 1); cells (N,3) in canonical order."""
+    k = np.asarray(s_sym, dtype=np.int64)
+    if len(k) == 0:
+        return b""
+    if k.min() < -S_SYMBOL_LIMIT or k.max() > S_SYMBOL_LIMIT - 1:
+        raise ValueError(f"s symbols must lie in [{-S_SYMBOL_LIMIT}, {S_SYMBOL_LIMIT - 1}]")
+    w = entropy.Writer()
+    models = _encode_signed(predict.residuals(cells, k), R_BUCKETS, w)
+    return models + w.finish()
+
+
+def decode_s_predicted(section: bytes, cells: np.ndarray) -> np.ndarray:
+    n = len(cells)
+    if n == 0:
+        if section:
+            raise ContainerError("invalid .tw payload: s data for zero points")
+        return np.zeros(0, dtype=np.int64)
+    models = _Models(section, "s")
+    hist = models.histogram(R_BUCKETS)
+    r = entropy.Reader(section[models.pos :], "s")
+    k = predict.reconstruct(cells, _decode_signed(hist, n, r))
+    if k.min() < -S_SYMBOL_LIMIT or k.max() > S_SYMBOL_LIMIT - 1:
+        raise ContainerError("invalid .tw payload: s symbol out of range")
+    return k
+
+
 # -----------------------------------------------------------------------------------------------------------
 # c
 
@@ -179,14 +235,7 @@ def encode_c(c_sym: np.ndarray, sh_degree: int) -> bytes:
     models = bytearray()
     w = entropy.Writer()
     for j0, j1 in _bands(sh_degree):
-        v = k[:, j0:j1].T.reshape(-1)  # coefficient-major
-        m = np.abs(v)
-        e = bit_length(m)
-        hist = _fit_trimmed(e, C_BUCKETS)
-        models += _histogram_bytes(hist)
-        w.encode(e, entropy.histogram_model(hist))
-        w.encode((v[m > 0] < 0).astype(np.int64), entropy.fair_bit())
-        w.encode_raw(*_raw_bits(m, e))
+        models += _encode_signed(k[:, j0:j1].T.reshape(-1), C_BUCKETS, w)  # coefficient-major
     return bytes(models) + w.finish()
 
 
@@ -201,13 +250,8 @@ def decode_c(section: bytes, n: int, sh_degree: int) -> np.ndarray:
     r = entropy.Reader(section[models.pos :], "c")
     out = np.empty((n, q), dtype=np.int64)
     for (j0, j1), hist in zip(_bands(sh_degree), hists, strict=True):
-        e = r.decode(entropy.histogram_model(hist), n * (j1 - j0))
-        nonzero = e > 0
-        neg = r.decode(entropy.fair_bit(), int(nonzero.sum()))
-        m = _from_raw(r.decode_raw(np.maximum(e - 1, 0)), e)
-        if m.max() > C_SYMBOL_LIMIT:
+        v = _decode_signed(hist, n * (j1 - j0), r)
+        if np.abs(v).max() > C_SYMBOL_LIMIT:
             raise ContainerError("invalid .tw payload: c symbol out of range")
-        sign = np.ones(len(m), dtype=np.int64)
-        sign[np.flatnonzero(nonzero)[neg == 1]] = -1
-        out[:, j0:j1] = (sign * m).reshape(j1 - j0, n).T
+        out[:, j0:j1] = v.reshape(j1 - j0, n).T
     return out

@@ -7,7 +7,9 @@ import numpy as np
 MAGIC = b"\x89TWV\r\n\x1a\n"  # bytes 0-7 of every version; the uint16 version follows at offset 8
 CHECKSUM_SIZE = 4  # CRC-32 (zlib) of every byte before it, the file's last 4 bytes
 FLAG_QHULL = 1 << 0  # the encoder's Delaunay backend was Qhull (else TetGen)
-KNOWN_FLAGS = FLAG_QHULL
+FLAG_S_PREDICTED = 1 << 1  # version 2: the s stream holds residuals of the neighbour prediction (formats/predict.py)
+KNOWN_FLAGS = FLAG_QHULL  # version 1
+KNOWN_FLAGS_V2 = FLAG_QHULL | FLAG_S_PREDICTED
 
 
 def backend_flags(backend: str) -> int:
@@ -24,7 +26,7 @@ def backend_name(flags: int) -> str:
     return "qhull" if flags & FLAG_QHULL else "tetgen"
 
 
-def checked_fields(scale, offset, flags) -> tuple[float, np.ndarray, int]:
+def checked_fields(scale, offset, flags, known: int = KNOWN_FLAGS) -> tuple[float, np.ndarray, int]:
     """scale (float > 0), offset (3,) float64 and flags as a writer stores them; ValueError when invalid."""
     scale = float(scale)
     offset = np.asarray(offset, dtype=np.float64).reshape(-1)
@@ -33,6 +35,6 @@ def checked_fields(scale, offset, flags) -> tuple[float, np.ndarray, int]:
     if offset.shape != (3,) or not np.isfinite(offset).all():
         raise ValueError("offset must be 3 finite numbers")
     flags = int(flags)
-    if flags & ~KNOWN_FLAGS or flags < 0:
+    if flags & ~known or flags < 0:
         raise ValueError(f"unknown flags 0x{flags:x}")
     return scale, offset, flags

@@ -7,7 +7,7 @@ offset  size       type     field
 ======  =========  =======  ==========================================================================
 0       8          bytes    magic ``89 54 57 56 0D 0A 1A 0A`` (as version 1)
 8       2          uint16   version = 2
-10      1          uint8    flags; bit 0: Delaunay backend (0 = TetGen, 1 = Qhull); others 0
+10      1          uint8    flags; bit 0: Delaunay backend (0 = TetGen, 1 = Qhull); bit 1: s predicted; others 0
 11      1          int8     SH degree d in -1..3
 12      1          uint8    position bits b in 6..16
 13      4          uint32   N, number of points (<= MAX_POINTS)
@@ -37,7 +37,7 @@ from tetweave_codec.geometry.sh import SH_DEGREE_MAX, SH_DEGREE_NONE, num_coeffs
 
 from . import attributes, octree
 from . import quantize as Q
-from .common import CHECKSUM_SIZE, KNOWN_FLAGS, MAGIC, backend_name, checked_fields
+from .common import CHECKSUM_SIZE, FLAG_S_PREDICTED, KNOWN_FLAGS_V2, MAGIC, backend_name, checked_fields
 
 VERSION = 2
 FIXED_FORMAT = "<8sHBbBI4df"
@@ -61,7 +61,8 @@ class TetWeaveFileV2:
     s_sym: (N,) int64 s symbols (`quantize.quantize_s`), same order.
     c_sym: (N, q) int64 c symbols (`quantize.quantize_c`), q = num_coeffs(sh_degree).
     position_bits: b in 6..16. s_step: float (stored as float32). c_band_steps: d + 1 floats (float32).
-    sh_degree: -1..3. scale, offset: ``original = normalized * scale + offset``. flags: bit 0 = Qhull.
+    sh_degree: -1..3. scale, offset: ``original = normalized * scale + offset``. flags: bit 0 = Qhull, bit 1 = s
+    coded as prediction residuals (what the encoder writes).
     sizes: byte size of each part of the file it was read from ("header", "positions", "s", "c",
     "checksum"), or None for a file built in memory.
 
@@ -180,9 +181,13 @@ def pack_v2(f: TetWeaveFileV2) -> bytes:
     band_steps = [Q.stored_step(x) for x in np.asarray(f.c_band_steps, dtype=np.float64).reshape(-1)]
     if len(band_steps) != degree + 1:
         raise ValueError(f"need {degree + 1} c band steps for SH degree {degree}, got {len(band_steps)}")
-    scale, offset, flags = checked_fields(f.scale, f.offset, f.flags)
+    scale, offset, flags = checked_fields(f.scale, f.offset, f.flags, KNOWN_FLAGS_V2)
     models, words = octree.encode(cells, bits)
-    sections = (models + words, attributes.encode_s(s_sym), attributes.encode_c(c_sym, degree) if n else b"")
+    if flags & FLAG_S_PREDICTED:
+        s_section = attributes.encode_s_predicted(s_sym, cells)
+    else:
+        s_section = attributes.encode_s(s_sym)
+    sections = (models + words, s_section, attributes.encode_c(c_sym, degree) if n else b"")
     header = struct.pack(FIXED_FORMAT, MAGIC, VERSION, flags, degree, bits, n, scale, *offset, s_step)
     header += struct.pack(f"<{degree + 1}f", *band_steps) + struct.pack("<3I", *(len(x) for x in sections))
     body = header + b"".join(sections)
@@ -215,8 +220,8 @@ def unpack_v2(buf: bytes) -> TetWeaveFileV2:
     if zlib.crc32(memoryview(buf)[: size - CHECKSUM_SIZE]) != stored_crc:
         raise ContainerError("corrupted .tw file: checksum mismatch")
     # Behind a valid checksum: the remaining checks catch files written wrongly (or forged) rather than damaged.
-    if flags & ~KNOWN_FLAGS:
-        raise ContainerError(f"invalid .tw header: unknown flags 0x{flags & ~KNOWN_FLAGS:x}")
+    if flags & ~KNOWN_FLAGS_V2:
+        raise ContainerError(f"invalid .tw header: unknown flags 0x{flags & ~KNOWN_FLAGS_V2:x}")
     if not Q.POSITION_BITS_MIN <= bits <= Q.POSITION_BITS_MAX:
         raise ContainerError(
             f"invalid .tw header: {bits} position bits (expected {Q.POSITION_BITS_MIN}..{Q.POSITION_BITS_MAX})"
@@ -242,7 +247,10 @@ def unpack_v2(buf: bytes) -> TetWeaveFileV2:
     if len(sec[0]) < model_bytes:
         raise ContainerError("invalid .tw payload: the positions section is shorter than its models")
     cells = octree.decode(sec[0][:model_bytes], sec[0][model_bytes:], int(bits), int(n))
-    s_sym = attributes.decode_s(sec[1], int(n))
+    if flags & FLAG_S_PREDICTED:
+        s_sym = attributes.decode_s_predicted(sec[1], cells)
+    else:
+        s_sym = attributes.decode_s(sec[1], int(n))
     c_sym = attributes.decode_c(sec[2], int(n), int(degree))
     sizes = {"header": hsize, **dict(zip(SECTIONS, section_sizes, strict=True)), "checksum": CHECKSUM_SIZE}
     return TetWeaveFileV2(

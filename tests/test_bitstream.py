@@ -185,7 +185,7 @@ def v2_files(draw):
     steps = tuple(float(np.float32(x)) for x in rng.uniform(1e-3, 1, degree + 1))
     f = TetWeaveFileV2(
         cells[perm], s_sym[perm], c_sym[perm], bits, float(np.float32(draw(st.floats(1e-6, 10)))), steps,
-        degree, draw(st.floats(1e-6, 1e6)), rng.normal(size=3), draw(st.sampled_from([0, 1])),
+        degree, draw(st.floats(1e-6, 1e6)), rng.normal(size=3), draw(st.sampled_from([0, 1, 2, 3])),
     )  # fmt: skip
     return f, perm
 
@@ -232,7 +232,8 @@ def test_pack_v2_rejects_bad_contents():
         dict(s_step=0.0),
         dict(position_bits=5),
         dict(scale=-1.0),
-        dict(flags=2),
+        dict(s_sym=np.full(10, Q.S_SYMBOL_LIMIT), flags=2),
+        dict(flags=4),
     ]
     fields = dict(f.__dict__)
     fields.pop("sizes", None)
@@ -272,15 +273,17 @@ def test_octree_never_yields_more_points_than_announced():
 # hostile input
 
 
-def test_every_truncation_is_rejected():
-    data = pack_v2(random_file(n=30, degree=1))
+@pytest.mark.parametrize("flags", [0, 2])
+def test_every_truncation_is_rejected(flags):
+    data = pack_v2(random_file(n=30, degree=1, flags=flags))
     for size in range(len(data)):
         with pytest.raises(ContainerError):
             tw.unpack(data[:size])
 
 
 def test_random_byte_flips_with_a_valid_checksum_decode_or_raise_container_error():
-    files = [pack_v2(random_file(n=n, degree=d, bits=b, seed=n)) for n, d, b in ((40, 1, 10), (12, 3, 6), (25, -1, 16))]
+    cases = ((40, 1, 10, 0), (12, 3, 6, 0), (25, -1, 16, 0), (40, 1, 10, 2), (30, 0, 8, 3))
+    files = [pack_v2(random_file(n=n, degree=d, bits=b, seed=n, flags=fl)) for n, d, b, fl in cases]
     rng = np.random.default_rng(7)
     outcomes = {"ok": 0, "error": 0}
     for trial in range(3000):
@@ -328,18 +331,19 @@ def test_random_headers_and_payloads_decode_or_raise_container_error(degree, bit
     assert_valid(g)
 
 
-def test_random_streams_behind_valid_headers():
+@pytest.mark.parametrize("flags", [0, 2])
+def test_random_streams_behind_valid_headers(flags):
     """Valid header, positions and models; random coded words for s and c: the stream decoders are exercised."""
     from tetweave_codec.formats import attributes
 
-    f = random_file(n=50, degree=2)
+    f = random_file(n=50, degree=2, flags=flags)
     data = pack_v2(f)
     hsize = header_size(2)
     pos_size, s_size, c_size = struct.unpack_from("<3I", data, hsize - 12)
     pos = data[hsize : hsize + pos_size]
     s_sec = data[hsize + pos_size : hsize + pos_size + s_size]
     c_sec = data[hsize + pos_size + s_size : hsize + pos_size + s_size + c_size]
-    s_models = s_sec[: attributes.model_size_s(s_sec)]
+    s_models = s_sec[: attributes.model_size_s(s_sec) if flags == 0 else 1 + s_sec[0]]
     c_models = c_sec[: attributes.model_size_c(c_sec, 2)]
     rng = np.random.default_rng(3)
     ok = 0
@@ -366,7 +370,7 @@ def test_n_above_the_format_limit_is_rejected_before_decoding():
 @pytest.mark.parametrize(
     "offset, fmt, value, message",
     [
-        (10, "<B", 2, "unknown flags"),
+        (10, "<B", 4, "unknown flags"),
         (11, "<b", 4, "SH degree"),
         (12, "<B", 5, "position bits"),
         (12, "<B", 17, "position bits"),

@@ -229,6 +229,7 @@ class Job:
 
 def pack_result(result: FitResult, scale: float, offset: np.ndarray) -> bytes:
     """The `.tw` bytes of a fit: version 1 or 2 after `result.finish.version`."""
+    from tetweave_codec.formats.common import FLAG_S_PREDICTED
     from tetweave_codec.formats.tw import TetWeaveFile, TetWeaveFileV2, backend_flags, pack, pack_v2
 
     fin = result.finish
@@ -242,6 +243,7 @@ def pack_result(result: FitResult, scale: float, offset: np.ndarray) -> bytes:
         return pack(TetWeaveFile(points=fin.points, s=fin.s, c=fin.c, **shared))
     q = fin.quantization
     steps = tuple(q.c_band_steps[: result.sh_degree + 1])
+    shared["flags"] |= FLAG_S_PREDICTED
     return pack_v2(
         TetWeaveFileV2(
             cells=fin.cells,

@@ -1,0 +1,93 @@
+"""s prediction (formats/predict.py): exact neighbours, encoder and decoder agree bit for bit, and it predicts."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from tetweave_codec.formats import predict
+from tetweave_codec.formats import quantize as Q
+from tetweave_codec.formats.tw2 import pack_v2, quantize_file, unpack_v2
+
+
+def canonical_cells(cells: np.ndarray) -> np.ndarray:
+    cells, _ = Q.merge_collisions(cells)
+    return cells[Q.canonical_order(cells)]
+
+
+def brute_force_neighbors(cells: np.ndarray, k: int):
+    idx = np.full((len(cells), k), -1)
+    d2 = np.zeros((len(cells), k), dtype=np.int64)
+    for i in range(len(cells)):
+        dd = ((cells[:i] - cells[i]) ** 2).sum(-1)
+        order = sorted(range(i), key=lambda j: (dd[j], j))[:k]
+        idx[i, : len(order)] = order
+        d2[i, : len(order)] = dd[order]
+    return idx, d2
+
+
+@given(seed=st.integers(0, 2**32 - 1), n=st.integers(0, 300), spread=st.sampled_from([2, 5, 40, 4096]))
+@settings(max_examples=40, deadline=None)
+def test_causal_neighbors_are_the_exact_nearest_earlier_points_with_index_ties(seed, n, spread):
+    # small spreads put many points at equal integer distances: the tie rule decides
+    rng = np.random.default_rng(seed)
+    cells = canonical_cells(rng.integers(0, spread, (n, 3)))
+    idx, d2 = predict.causal_neighbors(cells)
+    ref_idx, ref_d2 = brute_force_neighbors(cells, predict.K_NEIGHBORS)
+    assert np.array_equal(idx, ref_idx) and np.array_equal(d2, ref_d2)
+
+
+def test_far_away_earlier_points_take_the_brute_force_path():
+    # two clusters far apart, then points interleaved so that many of a point's nearest are later points
+    rng = np.random.default_rng(1)
+    a = rng.integers(0, 8, (200, 3))
+    b = rng.integers(1000, 1008, (200, 3))
+    cells = canonical_cells(np.concatenate([a, b, [[500, 500, 500]]]))
+    idx, d2 = predict.causal_neighbors(cells)
+    ref_idx, ref_d2 = brute_force_neighbors(cells, predict.K_NEIGHBORS)
+    assert np.array_equal(idx, ref_idx) and np.array_equal(d2, ref_d2)
+
+
+@given(seed=st.integers(0, 2**32 - 1), n=st.integers(0, 200), big=st.booleans())
+@settings(max_examples=60, deadline=None)
+def test_decoder_reconstructs_exactly_what_the_encoder_predicted(seed, n, big):
+    rng = np.random.default_rng(seed)
+    cells = canonical_cells(rng.integers(0, 2**10, (n, 3)))
+    lim = Q.S_SYMBOL_LIMIT if big else 50
+    s_sym = rng.integers(-lim, lim, len(cells))
+    if big and len(cells):
+        s_sym[0], s_sym[-1] = -Q.S_SYMBOL_LIMIT, Q.S_SYMBOL_LIMIT - 1
+    r = predict.residuals(cells, s_sym)
+    assert np.array_equal(predict.reconstruct(cells, r), s_sym)
+
+
+def test_a_linear_field_is_predicted_to_within_the_rounding():
+    # s = signed distance to a plane: exactly linear, so after the first few points the plane fit is exact up to
+    # the rounding of the neighbours' symbols -- this fails if the weights or the offsets' signs are wrong
+    rng = np.random.default_rng(0)
+    pts = rng.uniform(-0.5, 0.5, (4000, 3))
+    n = np.array([0.3, -0.5, 0.81])
+    n /= np.linalg.norm(n)
+    cells = canonical_cells(Q.quantize_positions(pts, 10))
+    s_sym = Q.quantize_s(Q.dequantize_positions(cells, 10) @ n + 0.05, 1e-3)  # the field at the stored positions
+    r = predict.residuals(cells, s_sym)
+    assert np.abs(r[20:]).max() <= 2 and np.abs(r[20:]).mean() < 0.3
+    assert np.abs(s_sym).mean() > 50  # the raw symbols are large: the prediction does the work
+
+
+@pytest.mark.parametrize("degree", [-1, 1])
+def test_a_sphere_costs_far_fewer_s_bits_with_prediction(degree):
+    rng = np.random.default_rng(2)
+    d = rng.normal(size=(3000, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    pts = d * rng.uniform(0.45, 0.55, (3000, 1))  # a shell around the sphere of radius 0.5
+    s = np.linalg.norm(pts, axis=1) - 0.5
+    c = np.zeros((3000, (degree + 1) ** 2))
+    kw = dict(position_bits=11, s_step=2e-4, c_band_steps=[0.2] * (degree + 1))
+    plain, _ = quantize_file(pts, s, c, degree, flags=0, **kw)
+    predicted, _ = quantize_file(pts, s, c, degree, flags=2, **kw)
+    a, b = unpack_v2(pack_v2(plain)), unpack_v2(pack_v2(predicted))
+    assert np.array_equal(a.s_sym, b.s_sym)
+    assert b.sizes["s"] < 0.75 * a.sizes["s"]  # measured 0.67
