@@ -29,9 +29,9 @@ from .quantize import S_SYMBOL_LIMIT
 
 K_NEIGHBORS = 8
 # Candidates asked of the k-d tree per point before the exact selection; points whose K causal neighbours are not
-# certain among them (their causal points are far) are redone with QUERY_WIDE, then by brute force.
-QUERY = 24
-QUERY_WIDE = 96
+# certain among them (their earlier points are far: the first points of a region in Morton order) are redone with
+# the next width, and the few left after the last one by brute force.
+QUERY_WIDTHS = (24, 96, 512, 4096)
 # Ridge on the plane's gradient, in squared cells per unit weight: keeps the fit defined with fewer than four or
 # coplanar neighbours. Measured (bits per point of the residuals, fandisk / stanford-bunny 40 KB files): 0.1 ->
 # 5.83 / 5.78; 1.0 -> 6.19 / 5.78; a ridge of 10 % of the neighbours' spread -> 6.94 / 6.06. Weights 1/d^2 beat
@@ -57,13 +57,14 @@ def causal_neighbors(cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return idx, d2
     tree = cKDTree(cells.astype(np.float64))
     todo = np.arange(n)
-    for width in (QUERY, QUERY_WIDE):
+    for width in QUERY_WIDTHS:
         if len(todo) == 0:
             break
         q = min(width, n)
-        _, cand = tree.query(cells[todo].astype(np.float64), k=q)
+        dist, cand = tree.query(cells[todo].astype(np.float64), k=q, workers=-1)
         cand = cand.reshape(len(todo), q).astype(np.int64)
-        cd2 = ((cells[cand] - cells[todo][:, None, :]) ** 2).sum(-1)
+        # the squared distances are integers below 2**50: squaring the rounded root and rounding restores them exactly
+        cd2 = np.rint(dist.reshape(len(todo), q) ** 2).astype(np.int64)
         # Points strictly closer than the farthest candidate are all among the candidates: exact below it.
         bound = cd2.max(axis=1, keepdims=True)
         complete = q == n

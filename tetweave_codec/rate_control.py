@@ -8,9 +8,10 @@ Two targets, each within about 1.5x the time of one fit at the chosen size:
   their values before the late stage); after the one late stage the steps are nudged, without another late
   stage, until the file lands in the band.
 * `encode_to_error(job, max_error)`: the decoded mesh's Chamfer distance (the summary's metric) is at most
-  `max_error`. Two small calibration fits (CALIBRATION_POINTS / 2 and CALIBRATION_POINTS) give the error's decay
-  with the point count, err ~ C N^-alpha; one fit at the predicted count follows, then coarser steps are tried
-  (without another late stage) while the error stays below the target, to save bytes.
+  `max_error`. The first fit's point count comes from a prior error model, err ~ PRIOR_ERROR_POINTS / N; its
+  measured error corrects the count for a second fit where needed (err ~ N^-alpha), and the two fits' errors
+  give alpha for a third in the rare case the second misses. Coarser steps are then tried (without another late
+  stage) while the error stays below the target, to save bytes.
 
 A target out of reach raises InputError (the CLI prints one line and exits 2 without writing a file).
 """
@@ -35,8 +36,14 @@ SIZE_AIM = 0.93  # where the estimate before the late stage aims, inside [SIZE_F
 MIN_RATE_POINTS = 128
 MAX_RATE_POINTS = 65536  # the largest fit rate control runs (several minutes on 2 CPU cores)
 MIN_FILE_BYTES = 200  # below this no useful TetWeave file exists (header alone: ~73 bytes)
-CALIBRATION_POINTS = 2048
+# Prior of the error model err ~ PRIOR_ERROR_POINTS / N (normalized frame): N x Chamfer of default-quality fits
+# (benchmarks/results/rate_control.md) is 1.6-1.9 on fandisk, 2.3-2.5 on spot, 4.8-6.1 on igea, 5.2-9.9 on
+# stanford-bunny; the first fit aims at 3.5 and the next ones correct with the measured error.
+PRIOR_ERROR_POINTS = 3.5
+PRIOR_ALPHA = 0.8  # err ~ N^-alpha when only one fit is known (a little below 1: ask for a few more points)
 ERROR_AIM = 0.85  # aim the predicted error at this fraction of the target
+MARGIN = 0.6  # a first fit below this fraction of the target is followed by a smaller one
+PRIOR_SPREAD = 4.0  # refuse without fitting when the prior asks for more than this many times MAX_RATE_POINTS
 # Step multipliers tried on s (and c with them) around the default, from coarse to fine.
 STEP_SCALES = (2.8, 2.0, 1.4, 1.0, 0.7, 0.5)
 
@@ -150,47 +157,69 @@ def _fit_band(job, ctx, result: FinishResult, data: bytes, size: int) -> tuple[F
 
 
 def encode_to_error(job, max_error: float):
-    """The smallest file this fit finds whose decoded mesh is within `max_error` (Chamfer) of the input."""
+    """The smallest file this fit finds whose decoded mesh is within `max_error` (Chamfer) of the input.
+
+    One fit at the count the prior err ~ PRIOR_ERROR_POINTS / N predicts; a second fit where the first missed
+    (count from the measured error and PRIOR_ALPHA) or met the target with a wide margin (a smaller file); a
+    third only where the second missed, with the exponent measured between the two fits. Then coarser steps.
+    """
     from tetweave_codec.decoder import decode
 
     if not (math.isfinite(max_error) and max_error > 0):
         raise InputError(f"the maximum error must be a positive number, got {max_error}")
-    # Calibration: two small fits give err(N) ~ C N^-alpha.
-    small, large = CALIBRATION_POINTS // 2, CALIBRATION_POINTS
-    runs = {}
-    for n in (small, large):
-        runs[n] = _fit_and_measure(job, n, default_quantization(n), decode)
-    e_small, e_large = runs[small][3], runs[large][3]
-    alpha = math.log(max(e_small, 1e-12) / max(e_large, 1e-12)) / math.log(large / small)
-    alpha = min(max(alpha, 0.6), 1.3)
-    if e_large <= max_error:
-        predicted = int(large * (e_large / (ERROR_AIM * max_error)) ** (1.0 / alpha))
-        if predicted >= large * 0.7:  # the calibration fit itself is about the right size
-            return _smallest_within(job, runs[large], max_error, large, decode, alpha)
-    else:
-        predicted = int(large * (e_large / (ERROR_AIM * max_error)) ** (1.0 / alpha))
-    if predicted > MAX_RATE_POINTS:
+    aim = ERROR_AIM * max_error
+    if PRIOR_ERROR_POINTS / aim > PRIOR_SPREAD * MAX_RATE_POINTS:
         raise InputError(
-            f"a maximum error of {max_error:.3g} is out of reach: about {predicted:,} points would be needed "
-            f"(rate control fits at most {MAX_RATE_POINTS:,}); at {large:,} points the error was {e_large:.3g}"
+            f"a maximum error of {max_error:.3g} is out of reach: meshes typically need about "
+            f"{int(min(PRIOR_ERROR_POINTS / aim, 1e12)):,} points for it "
+            f"(rate control fits at most {MAX_RATE_POINTS:,})"
         )
-    n = max(predicted, MIN_RATE_POINTS)
-    run = _fit_and_measure(job, n, default_quantization(n), decode)
+    n0 = _clamp_points(PRIOR_ERROR_POINTS / aim)
+    runs = {n0: _fit_and_measure(job, n0, default_quantization(n0), decode)}
+    e0 = runs[n0][3]
+    if e0 <= max_error:
+        best = n0
+        if e0 < MARGIN * max_error:  # comfortably met: a smaller fit probably meets it too
+            n1 = _clamp_points(n0 * (e0 / aim) ** (1.0 / PRIOR_ALPHA))
+            if n1 < 0.8 * n0:
+                runs[n1] = _fit_and_measure(job, n1, default_quantization(n1), decode)
+                if runs[n1][3] <= max_error:
+                    best = n1
+        return _smallest_within(job, runs[best], max_error, best, decode, _exponent(runs, PRIOR_ALPHA))
+    n1 = _needed(n0 * (e0 / aim) ** (1.0 / PRIOR_ALPHA), max_error, n0, e0)
+    runs[n1] = _fit_and_measure(job, n1, default_quantization(n1), decode)
+    if runs[n1][3] <= max_error:
+        return _smallest_within(job, runs[n1], max_error, n1, decode, _exponent(runs, PRIOR_ALPHA))
+    alpha = _exponent(runs, PRIOR_ALPHA)
+    e1 = runs[n1][3]
+    n2 = _needed(n1 * (e1 / aim) ** (1.0 / alpha), max_error, n1, e1)
+    run = _fit_and_measure(job, n2, default_quantization(n2), decode)
     if run[3] > max_error:
-        # One corrective fit, with the exponent measured between the calibration and this fit.
-        alpha = math.log(max(e_large, 1e-12) / max(run[3], 1e-12)) / math.log(n / large) if n != large else alpha
-        alpha = min(max(alpha, 0.5), 1.3)
-        n2 = int(n * (run[3] / (ERROR_AIM * max_error)) ** (1.0 / alpha))
-        if n2 > MAX_RATE_POINTS:
-            raise InputError(
-                f"a maximum error of {max_error:.3g} is out of reach: {n:,} points reached {run[3]:.3g} and about "
-                f"{n2:,} would be needed (rate control fits at most {MAX_RATE_POINTS:,})"
-            )
-        n = n2
-        run = _fit_and_measure(job, n, default_quantization(n), decode)
-        if run[3] > max_error:
-            raise InputError(f"could not reach a maximum error of {max_error:.3g}: {n:,} points reached {run[3]:.3g}")
-    return _smallest_within(job, run, max_error, n, decode, alpha)
+        raise InputError(f"could not reach a maximum error of {max_error:.3g}: {n2:,} points reached {run[3]:.3g}")
+    return _smallest_within(job, run, max_error, n2, decode, alpha)
+
+
+def _clamp_points(n: float) -> int:
+    return int(min(max(n, MIN_RATE_POINTS), MAX_RATE_POINTS))
+
+
+def _needed(n: float, max_error: float, fitted: int, err: float) -> int:
+    """`n` as a point count, or InputError when it is beyond what rate control fits (or no larger than `fitted`)."""
+    if n > MAX_RATE_POINTS or fitted >= MAX_RATE_POINTS:
+        raise InputError(
+            f"a maximum error of {max_error:.3g} is out of reach: {fitted:,} points reached {err:.3g} and about "
+            f"{int(min(n, 1e9)):,} would be needed (rate control fits at most {MAX_RATE_POINTS:,})"
+        )
+    return max(int(n), int(fitted * 1.2) + 1)
+
+
+def _exponent(runs: dict, default: float) -> float:
+    """err ~ N^-alpha between the two largest fits (clamped to [0.3, 1.3]), or `default` with one fit."""
+    if len(runs) < 2:
+        return default
+    (na, ra), (nb, rb) = sorted(runs.items())[-2:]
+    alpha = math.log(max(ra[3], 1e-12) / max(rb[3], 1e-12)) / math.log(nb / na)
+    return min(max(alpha, 0.3), 1.3)
 
 
 def _fit_and_measure(job, points: int, quant: Quantization, decode):
