@@ -19,16 +19,18 @@ def _box(lo: np.ndarray, hi: np.ndarray) -> str:
 
 def _v2_lines(file: Path, f, total: int, degree: str) -> list[tuple[str, str]]:
     from tetweave_codec.formats import quantize
+    from tetweave_codec.formats.common import FLAG_S_PREDICTED
 
     n = f.num_points
     bpp = (lambda b: f"{8 * b / n:.2f} bits/point") if n else (lambda b: "-")
     steps = ", ".join(f"l={band}: {x:.6g}" for band, x in enumerate(f.c_band_steps)) or "none"
+    predicted = "; s coded as prediction residuals" if f.flags & FLAG_S_PREDICTED else ""
     lines = [
         ("file", str(file)),
         ("format", ".tw version 2 (quantized; octree + range-coded streams)"),
         ("points", f"{n:,}"),
         ("SH degree", degree),
-        ("flags", f"0x{f.flags:x} (Delaunay backend: {f.backend})"),
+        ("flags", f"0x{f.flags:x} (Delaunay backend: {f.backend}{predicted})"),
         (
             "quantization",
             f"positions {f.position_bits} bits/axis (cell {quantize.cell_size(f.position_bits):.6g}), "
