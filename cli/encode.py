@@ -115,7 +115,7 @@ def _progress_lines(every_s: float = 10.0):
     "--position-bits",
     type=click.IntRange(6, 16),
     default=None,
-    help="v2: grid cells per axis = 2^bits over [-1.2, 1.2]^3.  [default: 9 at 4k points, one more per 4x points]",
+    help="v2: grid cells per axis = 2^bits over [-1.2, 1.2]^3.  [default: 8 at 4k points, one more per 4x points]",
 )
 @click.option(
     "--s-step",
