@@ -8,10 +8,10 @@ Two targets, each within about 1.5x the time of one fit at the chosen size:
   their values before the late stage); after the one late stage the steps are nudged, without another late
   stage, until the file lands in the band.
 * `encode_to_error(job, max_error)`: the decoded mesh's Chamfer distance (the summary's metric) is at most
-  `max_error`. The first fit's point count comes from a prior error model, err ~ PRIOR_ERROR_POINTS / N; its
-  measured error corrects the count for a second fit where needed (err ~ N^-alpha), and the two fits' errors
-  give alpha for a third in the rare case the second misses. Coarser steps are then tried (without another late
-  stage) while the error stays below the target, to save bytes.
+  `max_error`. The first fit's point count comes from a prior error model, err ~ PRIOR_ERROR_POINTS / N; the
+  measured errors steer at most two more fits (shrink, grow, or interpolate between a fit that met the target
+  and one that missed it). Coarser steps are then tried (without another late stage) while the error stays
+  below the target, to save bytes.
 
 A target out of reach raises InputError (the CLI prints one line and exits 2 without writing a file).
 """
@@ -43,7 +43,10 @@ MIN_FILE_BYTES = 200  # below this no useful TetWeave file exists (header alone:
 PRIOR_ERROR_POINTS = 3.5
 PRIOR_ALPHA = 0.8  # err ~ N^-alpha when only one fit is known (a little below 1: ask for a few more points)
 ERROR_AIM = 0.85  # aim the predicted error at this fraction of the target
-MARGIN = 0.6  # a first fit below this fraction of the target is followed by a smaller one
+ERROR_AIM_SHRINK = 0.75  # a smaller fit aims lower: the error grows faster than 1/N at small counts
+ERROR_AIM_BRACKET = 0.9  # between a fit that met the target and one that missed it
+CLOSE_ENOUGH = 0.75  # a fit within [CLOSE_ENOUGH, 1] x the target ends the search
+MAX_ERROR_FITS = 3
 PRIOR_SPREAD = 4.0  # refuse without fitting when the prior asks for more than this many times MAX_RATE_POINTS
 # Step multipliers tried on s (and c with them) around the default, from coarse to fine.
 STEP_SCALES = (2.8, 2.0, 1.4, 1.0, 0.7, 0.5)
@@ -160,9 +163,11 @@ def _fit_band(job, ctx, result: FinishResult, data: bytes, size: int) -> tuple[F
 def encode_to_error(job, max_error: float):
     """The smallest file this fit finds whose decoded mesh is within `max_error` (Chamfer) of the input.
 
-    One fit at the count the prior err ~ PRIOR_ERROR_POINTS / N predicts; a second fit where the first missed
-    (count from the measured error and PRIOR_ALPHA) or met the target with a wide margin (a smaller file); a
-    third only where the second missed, with the exponent measured between the two fits. Then coarser steps.
+    A search over point counts in log-log space, at most MAX_ERROR_FITS fits: the first count comes from the prior
+    err ~ PRIOR_ERROR_POINTS / N; while every fit met the target the next shrinks (err ~ N^-1, aiming at
+    ERROR_AIM_SHRINK of it), while none did the next grows (err ~ N^-PRIOR_ALPHA, aiming at ERROR_AIM); once one
+    fit met it and one missed, the next interpolates between them. It stops when a fit lands in
+    [CLOSE_ENOUGH, 1] x the target. Coarser steps are then tried on the smallest fit that met it.
     """
     from tetweave_codec.decoder import decode
 
@@ -175,29 +180,38 @@ def encode_to_error(job, max_error: float):
             f"{int(min(PRIOR_ERROR_POINTS / aim, 1e12)):,} points for it "
             f"(rate control fits at most {MAX_RATE_POINTS:,})"
         )
-    n0 = _clamp_points(PRIOR_ERROR_POINTS / aim)
-    runs = {n0: _fit_and_measure(job, n0, default_quantization(n0), decode)}
-    e0 = runs[n0][3]
-    if e0 <= max_error:
-        best = n0
-        if e0 < MARGIN * max_error:  # comfortably met: a smaller fit probably meets it too
-            n1 = _clamp_points(n0 * (e0 / aim) ** (1.0 / PRIOR_ALPHA))
-            if n1 < 0.8 * n0:
-                runs[n1] = _fit_and_measure(job, n1, default_quantization(n1), decode)
-                if runs[n1][3] <= max_error:
-                    best = n1
-        return _smallest_within(job, runs[best], max_error, best, decode, _exponent(runs, PRIOR_ALPHA))
-    n1 = _needed(n0 * (e0 / aim) ** (1.0 / PRIOR_ALPHA), max_error, n0, e0)
-    runs[n1] = _fit_and_measure(job, n1, default_quantization(n1), decode)
-    if runs[n1][3] <= max_error:
-        return _smallest_within(job, runs[n1], max_error, n1, decode, _exponent(runs, PRIOR_ALPHA))
-    alpha = _exponent(runs, PRIOR_ALPHA)
-    e1 = runs[n1][3]
-    n2 = _needed(n1 * (e1 / aim) ** (1.0 / alpha), max_error, n1, e1)
-    run = _fit_and_measure(job, n2, default_quantization(n2), decode)
-    if run[3] > max_error:
-        raise InputError(f"could not reach a maximum error of {max_error:.3g}: {n2:,} points reached {run[3]:.3g}")
-    return _smallest_within(job, run, max_error, n2, decode, alpha)
+    runs = {}
+    n = _clamp_points(PRIOR_ERROR_POINTS / aim)
+    for _ in range(MAX_ERROR_FITS):
+        runs[n] = _fit_and_measure(job, n, default_quantization(n), decode)
+        met = sorted(k for k, r in runs.items() if r[3] <= max_error)
+        missed = sorted(k for k, r in runs.items() if r[3] > max_error)
+        if met and runs[met[0]][3] >= CLOSE_ENOUGH * max_error:
+            break
+        if met and missed and missed[-1] < met[0]:  # bracketed: interpolate in log-log
+            lo, hi = missed[-1], met[0]
+            if hi <= lo * 1.15:
+                break
+            e_lo, e_hi = runs[lo][3], runs[hi][3]
+            t = math.log(e_lo / (ERROR_AIM_BRACKET * max_error)) / math.log(e_lo / e_hi)
+            nxt = int(round(math.exp(math.log(lo) + min(max(t, 0.2), 0.8) * math.log(hi / lo))))
+        elif met:  # every fit met it, with a margin: shrink
+            nxt = _clamp_points(met[0] * runs[met[0]][3] / (ERROR_AIM_SHRINK * max_error))
+            if nxt >= met[0] * 0.85:
+                break
+        else:  # none met it: grow
+            top = missed[-1]
+            nxt = _needed(top * (runs[top][3] / aim) ** (1.0 / PRIOR_ALPHA), max_error, top, runs[top][3])
+        if nxt in runs:
+            break
+        n = nxt
+    met = sorted(k for k, r in runs.items() if r[3] <= max_error)
+    if not met:
+        top = max(runs)
+        raise InputError(
+            f"could not reach a maximum error of {max_error:.3g}: {top:,} points reached {runs[top][3]:.3g}"
+        )
+    return _smallest_within(job, runs[met[0]], max_error, met[0], decode, _exponent(runs, PRIOR_ALPHA))
 
 
 def _clamp_points(n: float) -> int:
