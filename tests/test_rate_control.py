@@ -101,3 +101,32 @@ def test_cli_size_reports_target(tmp_path):
     assert res.exit_code == 0, res.output
     assert "size target 4,096 bytes" in res.output
     assert 0.85 * 4096 <= out.stat().st_size <= 4096
+
+
+@pytest.mark.parametrize("k,floor", [(1.0, 0.0), (3.5, 0.0), (12.0, 0.0), (2.0, 3e-4)])
+def test_max_error_search_on_a_model_of_the_error(monkeypatch, k, floor):
+    """The search over point counts (fits replaced by err = k / N + floor): it meets the target within
+    MAX_ERROR_FITS fits and ends close to the smallest sufficient count, or refuses in one line."""
+    calls = []
+
+    def fake_fit(job, n, quant, decode):
+        calls.append(n)
+        return (None, None, b"", k / n + floor, None)
+
+    monkeypatch.setattr(rate_control, "_fit_and_measure", fake_fit)
+    monkeypatch.setattr(rate_control, "_smallest_within", lambda job, run, e, n, decode, alpha: (n, run[3]))
+    target = 1e-3
+    needed = k / (target - floor)
+    if needed > rate_control.MAX_RATE_POINTS:
+        with pytest.raises(InputError, match="reach"):
+            rate_control.encode_to_error(None, target)
+        return
+    n, err = rate_control.encode_to_error(None, target)
+    assert err <= target and len(calls) <= rate_control.MAX_ERROR_FITS
+    assert n <= 1.7 * needed  # not far above the smallest count that meets the target
+
+
+def test_max_error_search_refuses_what_no_allowed_fit_reaches(monkeypatch):
+    monkeypatch.setattr(rate_control, "_fit_and_measure", lambda job, n, q, d: (None, None, b"", 5e-3, None))
+    with pytest.raises(InputError, match="could not reach|out of reach"):
+        rate_control.encode_to_error(None, 1e-3)
