@@ -1,4 +1,4 @@
-"""Prediction of s from already-coded neighbours (`.tw` version 2 with flag bit 1, formats/README.md "s prediction").
+"""Prediction of s from already-coded neighbours (`.tw` v2 flag bit 1; formats/README.md "s section, predicted").
 
 A fitted s is close to a signed distance, which is locally linear: a plane fitted to the s of a point's nearby
 points predicts its s to a fraction of the spread of s itself. Measured on fitted files (bits per point of the s
@@ -7,8 +7,9 @@ stream, order-0 entropy): fandisk 40 KB 8.28 -> 5.83, stanford-bunny 40 KB 7.44 
 Everything here is exact and reproducible by an independent decoder:
 
 * Neighbours (`causal_neighbors`): for the point of canonical index i, the K_NEIGHBORS points j < i nearest to it
-  in integer cell coordinates, ties broken by the smaller j (fewer when i < K_NEIGHBORS). Squared distances are
-  int64, so the order is exact.
+  in integer cell coordinates, ties broken by the smaller j, searched among the points strictly closer than its
+  W-th nearest point (see QUERY_WIDTHS; fewer neighbours when there are fewer there). Squared distances are
+  int64, so the selection is exact.
 * Prediction: a weighted least-squares plane through the neighbours' values u_j = k_j + 1/2 (mid-rise symbols k
   stand for (k + 1/2) steps), evaluated at the point. Its value is linear in the u_j with weights that depend on
   the positions only (`predictor_weights`), so the decoder computes them for all points at once and then runs
@@ -28,10 +29,12 @@ from scipy.spatial import cKDTree
 from .quantize import S_SYMBOL_LIMIT
 
 K_NEIGHBORS = 8
-# Candidates asked of the k-d tree per point before the exact selection; points whose K causal neighbours are not
-# certain among them (their earlier points are far: the first points of a region in Morton order) are redone with
-# the next width, and the few left after the last one by brute force.
+# Candidate widths W: a point's neighbours are its K nearest earlier points among the points strictly closer than
+# its W-th nearest point (itself included), for the first W in this list that yields min(i, K) of them, else the
+# last W's (fewer than K: the first points of a region in Morton order, whose earlier points are all far). This
+# bounds the work per point, whatever the file.
 QUERY_WIDTHS = (24, 96, 512, 4096)
+QUERY_ENTRIES = 1 << 22  # candidates per k-d tree query call (memory bound)
 # Ridge on the plane's gradient, in squared cells per unit weight: keeps the fit defined with fewer than four or
 # coplanar neighbours. Measured (bits per point of the residuals, fandisk / stanford-bunny 40 KB files): 0.1 ->
 # 5.83 / 5.78; 1.0 -> 6.19 / 5.78; a ridge of 10 % of the neighbours' spread -> 6.94 / 6.06. Weights 1/d^2 beat
@@ -58,36 +61,40 @@ def causal_neighbors(cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     tree = cKDTree(cells.astype(np.float64))
     todo = np.arange(n)
     for width in QUERY_WIDTHS:
+        q = min(width, n)
+        last = width == QUERY_WIDTHS[-1] or q == n
+        left = []
+        for start in range(0, len(todo), max(1, QUERY_ENTRIES // q)):  # bounded memory per query
+            rows = todo[start : start + max(1, QUERY_ENTRIES // q)]
+            left.append(_select(tree, cells, rows, q, last, idx, d2))
+        todo = np.concatenate(left) if left else todo[:0]
         if len(todo) == 0:
             break
-        q = min(width, n)
-        dist, cand = tree.query(cells[todo].astype(np.float64), k=q, workers=-1)
-        cand = cand.reshape(len(todo), q).astype(np.int64)
-        # the squared distances are integers below 2**50: squaring the rounded root and rounding restores them exactly
-        cd2 = np.rint(dist.reshape(len(todo), q) ** 2).astype(np.int64)
-        # Points strictly closer than the farthest candidate are all among the candidates: exact below it.
-        bound = cd2.max(axis=1, keepdims=True)
-        complete = q == n
-        valid = (cand < todo[:, None]) & ((cd2 < bound) | complete)
-        key = np.where(valid, cd2 * n + cand, np.iinfo(np.int64).max)
-        kk = min(k, q)
-        order = np.argsort(key, axis=1, kind="stable")[:, :kk]
-        sel_valid = np.take_along_axis(valid, order, axis=1)
-        count = sel_valid.sum(axis=1)
-        done = (count >= np.minimum(todo, k)) | complete
-        rows = todo[done]
-        sel = np.take_along_axis(cand, order, axis=1)[done]
-        sd2 = np.take_along_axis(cd2, order, axis=1)[done]
-        ok = sel_valid[done]
-        idx[rows, :kk] = np.where(ok, sel, -1)
-        d2[rows, :kk] = np.where(ok, sd2, 0)
-        todo = todo[~done]
-    for i in todo:  # brute force over every earlier point (rare: points whose earlier points are all far away)
-        dd = ((cells[:i] - cells[i]) ** 2).sum(-1)
-        order = np.lexsort((np.arange(i), dd))[:k]
-        idx[i, : len(order)] = order
-        d2[i, : len(order)] = dd[order]
     return idx, d2
+
+
+def _select(tree, cells, rows, q, last, idx, d2) -> np.ndarray:
+    """Fill idx/d2 for `rows` from their q nearest points; returns the rows left for a wider query."""
+    n, k = len(cells), idx.shape[1]
+    dist, cand = tree.query(cells[rows].astype(np.float64), k=q, workers=-1)
+    cand = cand.reshape(len(rows), q).astype(np.int64)
+    # the squared distances are integers below 2**50: squaring the rounded root and rounding restores them exactly
+    cd2 = np.rint(dist.reshape(len(rows), q) ** 2).astype(np.int64)
+    # Every point strictly closer than the q-th smallest distance D is among the candidates, whichever tied points
+    # the tree returned: the selection below D is exact.
+    bound = cd2.max(axis=1, keepdims=True)
+    valid = (cand < rows[:, None]) & ((cd2 < bound) | (q == n))
+    key = np.where(valid, cd2 * n + cand, np.iinfo(np.int64).max)
+    kk = min(k, q)
+    order = np.argsort(key, axis=1, kind="stable")[:, :kk]
+    sel_valid = np.take_along_axis(valid, order, axis=1)
+    done = (sel_valid.sum(axis=1) >= np.minimum(rows, k)) | last
+    sel = np.take_along_axis(cand, order, axis=1)[done]
+    sd2 = np.take_along_axis(cd2, order, axis=1)[done]
+    ok = sel_valid[done]
+    idx[rows[done], :kk] = np.where(ok, sel, -1)
+    d2[rows[done], :kk] = np.where(ok, sd2, 0)
+    return rows[~done]
 
 
 def predictor_weights(cells: np.ndarray, idx: np.ndarray, d2: np.ndarray) -> np.ndarray:

@@ -17,12 +17,23 @@ def canonical_cells(cells: np.ndarray) -> np.ndarray:
     return cells[Q.canonical_order(cells)]
 
 
-def brute_force_neighbors(cells: np.ndarray, k: int):
-    idx = np.full((len(cells), k), -1)
-    d2 = np.zeros((len(cells), k), dtype=np.int64)
-    for i in range(len(cells)):
-        dd = ((cells[:i] - cells[i]) ** 2).sum(-1)
-        order = sorted(range(i), key=lambda j: (dd[j], j))[:k]
+def brute_force_neighbors(cells: np.ndarray, k: int, widths=None):
+    """The definition in formats/README.md, point by point: the k nearest earlier points by (d2, j) among the points
+    strictly closer than the W-th nearest point (itself included), for the first W with min(i, k) of them."""
+    widths = widths or predict.QUERY_WIDTHS
+    n = len(cells)
+    idx = np.full((n, k), -1)
+    d2 = np.zeros((n, k), dtype=np.int64)
+    for i in range(n):
+        dd = ((cells - cells[i]) ** 2).sum(-1)
+        ranked = np.sort(dd)
+        for w in widths:
+            q = min(w, n)
+            bound = ranked[q - 1]
+            valid = [j for j in range(i) if dd[j] < bound or q == n]
+            if len(valid) >= min(i, k) or w == widths[-1] or q == n:
+                break
+        order = sorted(valid, key=lambda j: (dd[j], j))[:k]
         idx[i, : len(order)] = order
         d2[i, : len(order)] = dd[order]
     return idx, d2
@@ -39,15 +50,24 @@ def test_causal_neighbors_are_the_exact_nearest_earlier_points_with_index_ties(s
     assert np.array_equal(idx, ref_idx) and np.array_equal(d2, ref_d2)
 
 
-def test_far_away_earlier_points_take_the_brute_force_path():
-    # two clusters far apart, then points interleaved so that many of a point's nearest are later points
+@pytest.mark.parametrize("widths", [(4, 8, 16), (3, 24)])
+def test_points_whose_earlier_points_are_far_get_the_last_widths_neighbours(widths):
+    # two clusters far apart and a point between them: with small widths many points run out of candidates
     rng = np.random.default_rng(1)
     a = rng.integers(0, 8, (200, 3))
     b = rng.integers(1000, 1008, (200, 3))
     cells = canonical_cells(np.concatenate([a, b, [[500, 500, 500]]]))
-    idx, d2 = predict.causal_neighbors(cells)
-    ref_idx, ref_d2 = brute_force_neighbors(cells, predict.K_NEIGHBORS)
+    saved = predict.QUERY_WIDTHS
+    try:
+        predict.QUERY_WIDTHS = widths
+        idx, d2 = predict.causal_neighbors(cells)
+        r = predict.residuals(cells, np.arange(len(cells)) % 7 - 3)
+        assert np.array_equal(predict.reconstruct(cells, r), np.arange(len(cells)) % 7 - 3)
+    finally:
+        predict.QUERY_WIDTHS = saved
+    ref_idx, ref_d2 = brute_force_neighbors(cells, predict.K_NEIGHBORS, widths)
     assert np.array_equal(idx, ref_idx) and np.array_equal(d2, ref_d2)
+    assert (idx[predict.K_NEIGHBORS :] == -1).any()  # the fallback was exercised
 
 
 @given(seed=st.integers(0, 2**32 - 1), n=st.integers(0, 200), big=st.booleans())
