@@ -121,14 +121,27 @@ def model_size_c(data: bytes, sh_degree: int) -> int:
 # s
 
 
+def _s_symbols(s_sym: np.ndarray) -> np.ndarray:
+    """s symbols as int64, ValueError outside [-S_SYMBOL_LIMIT, S_SYMBOL_LIMIT)."""
+    k = np.asarray(s_sym, dtype=np.int64)
+    if k.size and (k.min() < -S_SYMBOL_LIMIT or k.max() > S_SYMBOL_LIMIT - 1):
+        raise ValueError(f"s symbols must lie in [{-S_SYMBOL_LIMIT}, {S_SYMBOL_LIMIT - 1}]")
+    return k
+
+
+def _no_s(section: bytes) -> np.ndarray:
+    """The s symbols of zero points (a non-empty section is invalid)."""
+    if section:
+        raise ContainerError("invalid .tw payload: s data for zero points")
+    return np.zeros(0, dtype=np.int64)
+
+
 def encode_s(s_sym: np.ndarray) -> bytes:
     """s section (models + coded words) for symbols in canonical order; empty for N = 0."""
-    k = np.asarray(s_sym, dtype=np.int64)
+    k = _s_symbols(s_sym)
     n = len(k)
     if n == 0:
         return b""
-    if k.min() < -S_SYMBOL_LIMIT or k.max() > S_SYMBOL_LIMIT - 1:
-        raise ValueError(f"s symbols must lie in [{-S_SYMBOL_LIMIT}, {S_SYMBOL_LIMIT - 1}]")
     t = (k < 0).astype(np.int64)
     t_even, t_odd = t[0::2], t[1::2]
     ctx = _sign_contexts(t_even, n)
@@ -147,9 +160,7 @@ def encode_s(s_sym: np.ndarray) -> bytes:
 
 def decode_s(section: bytes, n: int) -> np.ndarray:
     if n == 0:
-        if section:
-            raise ContainerError("invalid .tw payload: s data for zero points")
-        return np.zeros(0, dtype=np.int64)
+        return _no_s(section)
     models = _Models(section, "s")
     sign_models = models.take(4)
     if sign_models.min() < SIGN_MODEL_MIN or sign_models.max() > SIGN_MODEL_MAX:
@@ -192,11 +203,9 @@ def _decode_signed(hist: np.ndarray, count: int, r: entropy.Reader) -> np.ndarra
 
 def encode_s_predicted(s_sym: np.ndarray, cells: np.ndarray) -> bytes:
     """s section coded as residuals of the neighbour prediction (flag bit 1); cells (N,3) in canonical order."""
-    k = np.asarray(s_sym, dtype=np.int64)
+    k = _s_symbols(s_sym)
     if len(k) == 0:
         return b""
-    if k.min() < -S_SYMBOL_LIMIT or k.max() > S_SYMBOL_LIMIT - 1:
-        raise ValueError(f"s symbols must lie in [{-S_SYMBOL_LIMIT}, {S_SYMBOL_LIMIT - 1}]")
     w = entropy.Writer()
     models = _encode_signed(predict.residuals(cells, k), R_BUCKETS, w)
     return models + w.finish()
@@ -205,9 +214,7 @@ def encode_s_predicted(s_sym: np.ndarray, cells: np.ndarray) -> bytes:
 def decode_s_predicted(section: bytes, cells: np.ndarray) -> np.ndarray:
     n = len(cells)
     if n == 0:
-        if section:
-            raise ContainerError("invalid .tw payload: s data for zero points")
-        return np.zeros(0, dtype=np.int64)
+        return _no_s(section)
     models = _Models(section, "s")
     hist = models.histogram(R_BUCKETS)
     r = entropy.Reader(section[models.pos :], "s")

@@ -153,11 +153,16 @@ def _predicted_symbol(a: np.ndarray) -> np.ndarray:
     return np.floor(np.clip(a, -float(S_SYMBOL_LIMIT), float(S_SYMBOL_LIMIT - 1))).astype(np.int64)
 
 
+def _predictor(cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Neighbour indices (N,K) and their weights beta (N,K): everything the positions alone determine."""
+    idx, d2 = causal_neighbors(cells)
+    return idx, predictor_weights(cells, idx, d2)
+
+
 def residuals(cells: np.ndarray, s_sym: np.ndarray) -> np.ndarray:
     """Encoder side: s symbols (N,) int64 in canonical order -> prediction residuals (N,) int64."""
     s_sym = np.asarray(s_sym, dtype=np.int64)
-    idx, d2 = causal_neighbors(cells)
-    beta = predictor_weights(cells, idx, d2)
+    idx, beta = _predictor(cells)
     u = s_sym.astype(np.float64) + 0.5  # mid-rise: symbol k stands for (k + 1/2) steps
     acc = np.zeros(len(s_sym))
     for j in range(idx.shape[1]):  # the decoder's order: neighbour slots 0..K-1, missing ones skipped
@@ -169,8 +174,7 @@ def reconstruct(cells: np.ndarray, residual: np.ndarray) -> np.ndarray:
     """Decoder side: residuals (N,) int64 -> s symbols (N,) int64 (not range-checked; the caller checks)."""
     residual = np.asarray(residual, dtype=np.int64)
     n = len(residual)
-    idx, d2 = causal_neighbors(cells)
-    beta = predictor_weights(cells, idx, d2)
+    idx, beta = _predictor(cells)
     lo, hi = -float(S_SYMBOL_LIMIT), float(S_SYMBOL_LIMIT - 1)
     idx_l, beta_l, res_l = idx.tolist(), beta.tolist(), residual.tolist()
     u = [0.0] * n
