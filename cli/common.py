@@ -79,3 +79,61 @@ class CountType(click.ParamType):
             return parse_count(value)
         except click.BadParameter as exc:
             self.fail(exc.message, param, ctx)
+
+
+# Plain progress lines (stderr not a terminal) come at most this often, in every command.
+PROGRESS_LINE_SECONDS = 10.0
+
+
+def _duration(seconds: float | None) -> str:
+    if seconds is None:
+        return "?"
+    seconds = int(seconds)
+    if seconds >= 3600:
+        return f"{seconds // 3600}h{seconds % 3600 // 60:02d}m"
+    return f"{seconds // 60}m{seconds % 60:02d}s"
+
+
+def batch_progress(command: str, total: int, quiet: bool = False):
+    """Progress over the files of a batch, fed by `runner.batch.run_batch`: on a terminal one bar (done, failed,
+    files per hour, ETA); otherwise a plain line every PROGRESS_LINE_SECONDS and one per failed file.
+
+    Returns (context manager, callback(record, counts)).
+    """
+    import contextlib
+    import sys
+    import time
+
+    def failure(record) -> str:
+        error = record["error"] or ""
+        return f"{command}: failed: " + (error if error.startswith(record["input"]) else f"{record['input']}: {error}")
+
+    def text(counts) -> str:
+        return (
+            f"{counts.done}/{counts.total} files ({counts.ok} ok, {counts.failed} failed, {counts.skipped} skipped), "
+            f"{counts.files_per_hour():.0f} files/h, ETA {_duration(counts.eta_seconds())}"
+        )
+
+    if quiet:
+        return contextlib.nullcontext(), lambda record, counts: None
+    if sys.stderr.isatty():
+        bar = click.progressbar(length=total, label=command, file=sys.stderr, width=24, show_eta=False)
+
+        def on_bar(record, counts) -> None:
+            if record["status"] == "failed":
+                click.echo("\n" + failure(record), err=True)
+            bar.label = f"{command}: {text(counts)}"
+            bar.update(1)
+
+        return bar, on_bar
+    state = {"last": time.monotonic()}
+
+    def on_line(record, counts) -> None:
+        now = time.monotonic()
+        if record["status"] == "failed":
+            click.echo(failure(record), err=True)
+        if now - state["last"] >= PROGRESS_LINE_SECONDS or counts.done == counts.total:
+            state["last"] = now
+            click.echo(f"{command}: {text(counts)}", err=True)
+
+    return contextlib.nullcontext(), on_line

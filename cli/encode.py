@@ -4,12 +4,13 @@ from __future__ import annotations
 
 import sys
 import time
-from dataclasses import replace
 from pathlib import Path
 
 import click
 
+from tetweave_codec.cli.batch import RAY_LOCAL, jobs_option, run_files, split_ray
 from tetweave_codec.cli.common import (
+    PROGRESS_LINE_SECONDS,
     CountType,
     configure_torch,
     device_option,
@@ -17,8 +18,11 @@ from tetweave_codec.cli.common import (
     quality_option,
     threads_option,
 )
+from tetweave_codec.runner.inputs import is_batch
 
 STAGE_NAMES = {"main": "main stage", "late": "late stage"}
+# --threads in a batch when not given: one torch thread per worker, --jobs defaults to one worker per core.
+BATCH_THREADS = 1
 
 
 def _progress_bar(total: int):
@@ -49,7 +53,7 @@ def _progress_bar(total: int):
     return bar, callback
 
 
-def _progress_lines(every_s: float = 10.0):
+def _progress_lines(every_s: float = PROGRESS_LINE_SECONDS):
     """Progress for logs (stderr not a terminal): one plain line per ~10 s with stage, iteration and ETA."""
     state = {"t0": time.perf_counter(), "last": 0.0, "main_total": 0}
 
@@ -69,13 +73,14 @@ def _progress_lines(every_s: float = 10.0):
 
 
 @click.command(context_settings={"show_default": True})
-@click.argument("mesh", type=click.Path(dir_okay=False, path_type=Path))
+@click.argument("inputs", nargs=-1, required=True, metavar="MESH...")
 @click.option(
     "-o",
     "--output",
-    type=click.Path(dir_okay=False, path_type=Path),
+    type=click.Path(path_type=Path),
     default=None,
-    help="Output .tw file.  [default: MESH with the suffix .tw]",
+    help="Output .tw file; with several inputs, a directory or an @list: the output directory, where the outputs "
+    "mirror the inputs' relative paths and manifest.jsonl records every file.  [default: MESH with the suffix .tw]",
 )
 @click.option(
     "--points",
@@ -132,9 +137,21 @@ def _progress_lines(every_s: float = 10.0):
 @device_option
 @click.option("--seed", type=int, default=0, help="Seed of every random choice: same seed, same bytes.")
 @threads_option
+@jobs_option("(batch)")
+@click.option(
+    "--ray",
+    "ray_value",
+    is_flag=False,
+    flag_value=RAY_LOCAL,
+    default=None,
+    metavar="[ADDRESS]",
+    help="Batch on Ray, one task per file: 'auto' = an existing cluster, HOST:PORT or ray://HOST:PORT a given one, "
+    'no address = a local Ray for this run. Needs pip install "tetweave[ray]".',
+)
+@click.option("--force", is_flag=True, help="Batch: encode again the files the manifest says are done.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar.")
 def encode(
-    mesh: Path,
+    inputs: tuple[str, ...],
     output: Path | None,
     points: int,
     sh_degree: str,
@@ -149,39 +166,84 @@ def encode(
     device: str,
     seed: int,
     threads: int,
+    jobs: int | None,
+    ray_value: str | None,
+    force: bool,
     quiet: bool,
 ) -> None:
-    """Compress MESH (OBJ, PLY, STL, OFF, GLB) into a .tw file by fitting a TetWeave point cloud to it."""
+    """Compress MESH (OBJ, PLY, STL, OFF, GLB) into a .tw file by fitting a TetWeave point cloud to it.
+
+    Several MESH arguments, directories (searched recursively) and @list.txt files (one path per line) make a
+    batch: -o DIR is required, files run in parallel (--jobs local processes, or --ray), a re-run skips the files
+    already done with the same input and options, and the exit status is 1 when any file failed.
+    """
+    from tetweave_codec.runner.work import EncodeOptions
+
+    use_ray, ray_address, inputs = split_ray(ray_value, inputs)
+    batch = is_batch(inputs) or use_ray or jobs is not None
+    opts = EncodeOptions(
+        points=points,
+        sh_degree=sh_degree,
+        quality=quality,
+        iters=iters,
+        size=size,
+        max_error=max_error,
+        format_version=int(format_version),
+        position_bits=position_bits,
+        s_step=s_step,
+        c_step=c_step,
+        device=device,
+        seed=seed,
+        threads=threads or (BATCH_THREADS if batch else 0),
+    )
+    if batch:
+        _encode_batch(inputs, output, opts, jobs, use_ray, ray_address, force, quiet)
+        return
+    _encode_one(Path(inputs[0]), output, opts, quiet)
+
+
+def _encode_batch(inputs, output, opts, jobs, use_ray, ray_address, force, quiet) -> None:
+    """Several files through tetweave_codec.runner (see cli/batch.py)."""
+    from tetweave_codec.meshio import MESH_FORMATS
+    from tetweave_codec.runner.executors import default_jobs, make_executor, require_ray
+    from tetweave_codec.runner.work import encode_file
+
+    if use_ray:
+        require_ray()
+    jobs = jobs or default_jobs(opts.threads)
+    gpus = 1.0 if opts.device == "cuda" else 0.0
+    run_files(
+        "tetweave encode",
+        inputs,
+        output,
+        extensions=tuple(MESH_FORMATS),
+        suffix=".tw",
+        options=opts.as_dict(),
+        worker=encode_file,
+        executor_factory=lambda: make_executor(jobs, ray_address, use_ray, opts.threads, gpus),
+        use_manifest=True,
+        force=force,
+        carry_data=use_ray,
+        quiet=quiet,
+    )
+
+
+def _encode_one(mesh: Path, output: Path | None, opts, quiet: bool) -> None:
+    """One file in this process, with the fit's own progress bar."""
     from tetweave_codec.encoder import encode as encode_mesh
-    from tetweave_codec.fit.config import default_quantization, schedule_for
+    from tetweave_codec.fit.config import schedule_for
     from tetweave_codec.meshio import load_mesh, write_bytes_atomic
+    from tetweave_codec.runner.inputs import check_output_file
 
     output = output or mesh.with_suffix(".tw")
     if output.resolve() == mesh.resolve():
         raise click.BadParameter("the output would overwrite the input", param_hint="-o/--output")
-    dev = configure_torch(threads, device)
+    check_output_file(output)  # before minutes of fitting
+    dev = configure_torch(opts.threads, opts.device)
     vertices, faces = load_mesh(mesh)
-    schedule = schedule_for(quality, iters)
-    degree = -1 if sh_degree == "none" else int(sh_degree)
-    quant = default_quantization(points)
-    if position_bits is not None:
-        quant = replace(quant, position_bits=position_bits)
-    if s_step is not None:
-        quant = replace(quant, s_step=s_step)
-    if c_step is not None:
-        quant = replace(quant, c_band_steps=(c_step,) * 4)
-    options = dict(
-        points=points,
-        sh_degree=degree,
-        quality=quality,
-        iters=iters,
-        device=dev,
-        seed=seed,
-        container_version=int(format_version),
-        quantization=quant,
-        size=size,
-        max_error=max_error,
-    )
+    schedule = schedule_for(opts.quality, opts.iters)
+    options = opts.encoder_kwargs(dev)
+    size, max_error, sh_degree = opts.size, opts.max_error, opts.sh_degree
     t0 = time.perf_counter()
     if quiet:
         result = encode_mesh(vertices, faces, **options)

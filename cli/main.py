@@ -14,7 +14,7 @@ import sys
 import click
 
 from tetweave_codec import __version__
-from tetweave_codec.errors import TetweaveError
+from tetweave_codec.errors import TetweaveError, error_line
 
 # command name -> "module:attribute" of its click.Command, in the order `--help` lists them.
 _SUBCOMMANDS = {
@@ -52,20 +52,17 @@ class _ErrorReportingGroup(click.Group):
             return super().invoke(ctx)
         except (click.exceptions.Exit, click.exceptions.Abort, click.ClickException, SystemExit):
             raise
-        except TetweaveError as exc:
-            fail(str(exc))
-        except OSError as exc:  # unreadable input, unwritable output, full disk
-            where = f": {exc.filename}" if exc.filename else ""
-            fail(f"{exc.strerror or exc}{where}")
-        except MemoryError:
-            fail("out of memory; try fewer points, a smaller --size, or --device cpu", code=1)
+        except (TetweaveError, OSError) as exc:  # bad input; unreadable input, unwritable output, full disk
+            fail(error_line(exc))
+        except MemoryError as exc:
+            fail(error_line(exc), code=1)
         except KeyboardInterrupt:
             click.echo("tetweave: interrupted", err=True)
             sys.exit(130)
         except Exception as exc:  # a bug of ours: still one line, traceback on request
             if os.environ.get("TETWEAVE_DEBUG"):
                 raise
-            fail(f"internal error ({type(exc).__name__}: {exc}); set TETWEAVE_DEBUG=1 for a traceback", code=1)
+            fail(f"{error_line(exc)}; set TETWEAVE_DEBUG=1 for a traceback", code=1)
 
 
 @click.group(cls=_ErrorReportingGroup, context_settings={"help_option_names": ["-h", "--help"]})

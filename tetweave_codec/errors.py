@@ -11,3 +11,19 @@ class InputError(TetweaveError):
 
 class ContainerError(TetweaveError):
     """A `.tw` container is malformed, truncated, corrupted or of an unsupported version."""
+
+
+def error_line(exc: BaseException) -> str:
+    """The one-line message users see for `exc`: what the CLI prints after "tetweave: error: " and what a batch
+    records for a failed file. TetweaveError: its message; OSError: reason and file; anything else is a bug of
+    ours, named as an internal error."""
+    if isinstance(exc, TetweaveError):
+        text = str(exc)
+    elif isinstance(exc, OSError):
+        where = f": {exc.filename}" if exc.filename else ""
+        text = f"{exc.strerror or exc}{where}"
+    elif isinstance(exc, MemoryError):
+        text = "out of memory; try fewer points, a smaller --size, or --device cpu"
+    else:
+        text = f"internal error ({type(exc).__name__}: {exc})"
+    return " ".join(text.split())  # one line, whatever the message held

@@ -12,6 +12,7 @@ file.
 
 from __future__ import annotations
 
+import io
 import os
 import tempfile
 from pathlib import Path
@@ -43,11 +44,13 @@ def mesh_format(path: str | os.PathLike, *, for_writing: bool = False) -> str:
     return MESH_FORMATS[ext]
 
 
-def load_mesh(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
+def load_mesh(path: str | os.PathLike, data: bytes | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Read a triangle mesh.
 
     Args:
         path: mesh file; the format comes from its extension (see MESH_FORMATS).
+        data: the file's bytes when they were read elsewhere (a batch worker on another machine); `path` then only
+            names the file and gives its format.
     Returns:
         vertices (V, 3) float64, faces (F, 3) int64 (polygons are triangulated by the reader).
     Raises:
@@ -55,17 +58,18 @@ def load_mesh(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
             face indices out of range.
     """
     name = os.fspath(path)
-    if not os.path.exists(name):
+    if data is None and not os.path.exists(name):
         raise InputError(f"{name}: no such file")
-    if not os.path.isfile(name):
+    if data is None and not os.path.isfile(name):
         raise InputError(f"{name}: not a regular file")
     file_type = mesh_format(path)
-    if not os.access(name, os.R_OK):
+    if data is None and not os.access(name, os.R_OK):
         raise InputError(f"{name}: permission denied")
     import trimesh
 
     try:
-        scene = trimesh.load_scene(name, file_type=file_type, process=False)
+        source = name if data is None else io.BytesIO(data)
+        scene = trimesh.load_scene(source, file_type=file_type, process=False)
         mesh = scene.to_mesh()
         vertices = np.asarray(mesh.vertices, dtype=np.float64).reshape(-1, 3)
         faces = np.asarray(mesh.faces, dtype=np.int64).reshape(-1, 3)
