@@ -8,9 +8,12 @@ from pathlib import Path
 
 import click
 
+from tetweave_codec.cli.batch import jobs_option, run_files
 from tetweave_codec.errors import InputError
+from tetweave_codec.runner.inputs import is_batch
 
 DEFAULT_SUFFIX = ".decoded.obj"
+TW_SUFFIX = ".tw"
 
 
 def default_output(path: Path) -> Path:
@@ -33,13 +36,14 @@ def echo_warnings(caught: list) -> None:
 
 
 @click.command(context_settings={"show_default": True})
-@click.argument("file", type=click.Path(path_type=Path))
+@click.argument("files", nargs=-1, required=True, metavar="FILE...")
 @click.option(
     "-o",
     "--output",
     type=click.Path(path_type=Path),
     default=None,
-    help="Output mesh; its extension picks the format (obj, ply, stl, off, glb).  "
+    help="Output mesh; its extension picks the format (obj, ply, stl, off, glb); with several inputs, a directory "
+    "or an @list: the output directory, where the outputs mirror the inputs' relative paths.  "
     f"[default: FILE with the suffix {DEFAULT_SUFFIX}, beside FILE; the input is never overwritten]",
 )
 @click.option(
@@ -48,12 +52,53 @@ def echo_warnings(caught: list) -> None:
     default="file",
     help="Delaunay backend: 'file' uses the one the encoder recorded, which reproduces its mesh exactly.",
 )
-def decode(file: Path, output: Path | None, delaunay: str) -> None:
+@click.option(
+    "--format",
+    "mesh_format_name",
+    default="obj",
+    help="Batch: format of the decoded meshes (obj, ply, stl, off, glb).",
+)
+@jobs_option("(batch)")
+@click.option("--quiet", "-q", is_flag=True, help="Batch: no progress.")
+def decode(
+    files: tuple[str, ...], output: Path | None, delaunay: str, mesh_format_name: str, jobs: int | None, quiet: bool
+) -> None:
     """Rebuild the mesh stored in FILE (a .tw file) in the original mesh's coordinates.
 
     The result is watertight and 2-manifold. If every point lies on the same side of the surface the mesh is
-    empty: an empty mesh file is written and a warning printed.
+    empty: an empty mesh file is written and a warning printed. Several FILEs, directories (searched for .tw
+    files) or @list.txt files decode in parallel (--jobs processes) into -o DIR; exit status 1 when any failed.
     """
+    if is_batch(files) or jobs is not None:
+        _decode_batch(files, output, delaunay, mesh_format_name, jobs, quiet)
+        return
+    _decode_one(Path(files[0]), output, delaunay)
+
+
+def _decode_batch(files, output, delaunay: str, fmt: str, jobs: int | None, quiet: bool) -> None:
+    """Several .tw files through tetweave_codec.runner (numpy only, like one file)."""
+    from tetweave_codec.meshio import mesh_format
+    from tetweave_codec.runner.executors import LocalExecutor, default_jobs
+    from tetweave_codec.runner.work import decode_file
+
+    fmt = mesh_format(f"decoded.{fmt}", for_writing=True)  # an unsupported format: one line, before any work
+    workers = jobs or default_jobs(1)
+    run_files(
+        "tetweave decode",
+        files,
+        output,
+        extensions=(TW_SUFFIX,),
+        suffix=f".{fmt}",
+        options={"format": fmt, "delaunay": delaunay},
+        worker=decode_file,
+        executor_factory=lambda: LocalExecutor(workers),
+        use_manifest=False,
+        quiet=quiet,
+    )
+
+
+def _decode_one(file: Path, output: Path | None, delaunay: str) -> None:
+    """One file in this process."""
     from tetweave_codec.decoder import decode_detailed
     from tetweave_codec.meshio import mesh_format, save_mesh
 

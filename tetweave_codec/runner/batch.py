@@ -148,8 +148,9 @@ def summary_lines(records: Sequence[dict], seconds: float) -> list[str]:
     ]
     size_in = sum(r.get("input_bytes") or 0 for r in done)
     size_out = sum(r.get("bytes") or 0 for r in done)
-    if size_out:
-        lines.append(f"bytes in {_size(size_in)} -> out {_size(size_out)} (ratio {size_in / size_out:.1f}x)")
+    if size_out and size_in:
+        ratio = f"{size_in / size_out:.1f}x smaller" if size_in >= size_out else f"{size_out / size_in:.1f}x larger"
+        lines.append(f"bytes in {_size(size_in)} -> out {_size(size_out)} ({ratio})")
     chamfers = [r["chamfer"] for r in done if isinstance(r.get("chamfer"), (int, float))]
     if chamfers:
         lines.append(f"median Chamfer distance {statistics.median(chamfers):.3g} over {len(chamfers)} files")

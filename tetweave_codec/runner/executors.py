@@ -27,10 +27,10 @@ RAY_MISSING = '--ray needs the optional Ray dependency: pip install "tetweave[ra
 
 def require_ray() -> None:
     """InputError (one line, exit 2) unless the optional ray package can be imported."""
-    import importlib.util
-
-    if importlib.util.find_spec("ray") is None:
-        raise InputError(RAY_MISSING)
+    try:
+        import ray  # noqa: F401
+    except ImportError:
+        raise InputError(RAY_MISSING) from None
 
 
 def available_cores() -> int:

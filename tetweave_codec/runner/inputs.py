@@ -50,7 +50,7 @@ def _search(directory: Path, extensions: tuple[str, ...]) -> list[Source]:
             if not name.startswith(".") and Path(name).suffix.lower() in extensions:
                 path = Path(root) / name
                 found.append(Source(path, _relative(path, directory)))
-    return found
+    return sorted(found, key=lambda source: source.rel.parts)
 
 
 def _read_list(list_file: Path) -> list[Path]:
