@@ -14,6 +14,7 @@ from pathlib import Path
 import click
 
 from tetweave_codec.benchmarks.methods import DECIMATE_DRACO, DRACO, FAMILIES, TETWEAVE
+from tetweave_codec.cli.batch import RAY_LOCAL, jobs_option, split_ray
 from tetweave_codec.cli.common import (
     configure_torch,
     device_option,
@@ -190,6 +191,16 @@ def _command_line(p: dict) -> str:
 @click.option("--pictures/--no-pictures", default=True, help="Render the side-by-side pictures.")
 @device_option
 @threads_option
+@jobs_option("for the tetweave encodes, which then all run first, in parallel")
+@click.option(
+    "--ray",
+    "ray_value",
+    is_flag=False,
+    flag_value=RAY_LOCAL,
+    default=None,
+    metavar="[ADDRESS]",
+    help="Run the tetweave encodes on Ray (as `tetweave encode --ray`).",
+)
 def bench(
     mesh_dir: Path,
     out_dir: Path,
@@ -207,6 +218,8 @@ def bench(
     pictures: bool,
     device: str,
     threads: int,
+    jobs: int | None,
+    ray_value: str | None,
 ) -> None:
     """Compare tetweave with Draco on every mesh in MESH_DIR (a folder, or one mesh file).
 
@@ -285,6 +298,16 @@ def bench(
         report.write_summary(rows, out_dir / "summary.md", command=command, images=images)
 
     say(f"{len(paths)} mesh(es) x {len(method_list)} method setting(s) -> {out_dir}")
+    use_ray, ray_address, _ = split_ray(ray_value, ())
+    if TETWEAVE in methods and (use_ray or jobs is not None):  # the fits first, in parallel, through the runner
+        from tetweave_codec.benchmarks.batch import precompute
+        from tetweave_codec.runner.executors import default_jobs, make_executor, require_ray
+
+        if use_ray:
+            require_ray()
+        workers = threads or 1
+        executor = make_executor(jobs or default_jobs(workers), ray_address, use_ray, workers)
+        method_list = precompute(paths, method_list, executor, workers, progress=say)
     all_rows = run_batch(paths, method_list, options, progress=say, on_mesh=on_mesh)
     # meshes that could not be loaded never reach on_mesh: their rows are only in all_rows
     report.write_csv(all_rows, out_dir / "results.csv")

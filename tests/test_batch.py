@@ -26,7 +26,6 @@ from tetweave_codec.runner.batch import make_tasks, run_batch
 from tetweave_codec.runner.executors import LocalExecutor
 from tetweave_codec.runner.inputs import Source, collect_inputs, output_paths
 from tetweave_codec.runner.manifest import MANIFEST_NAME, Manifest, new_record, read_last_records
-from tetweave_codec.runner.work import Task
 
 manifold3d = pytest.importorskip("manifold3d")
 trimesh = pytest.importorskip("trimesh")

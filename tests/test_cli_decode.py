@@ -220,3 +220,37 @@ def test_decoding_works_without_torch(tmp_path):
     np.testing.assert_allclose(v, ref_v, atol=1e-6)
     # the sphere of radius 0.6 * 5 around OFFSET
     assert np.abs(np.linalg.norm(v - OFFSET, axis=1) - 3.0).max() < 0.3
+
+
+def test_batch_decoding_works_without_torch(tmp_path):
+    """Several .tw files (a folder and an @list) decode in parallel worker processes where torch cannot be
+    imported: a `torch` package that raises on import comes first on PYTHONPATH, so the spawned workers cannot
+    import it either. Outputs mirror the inputs' relative paths and equal the single-file decode."""
+    import sys
+
+    blocker = tmp_path / "blocker" / "torch"
+    blocker.mkdir(parents=True)
+    (blocker / "__init__.py").write_text("raise ImportError('torch is blocked in this test')\n")
+    src = tmp_path / "in"
+    (src / "sub").mkdir(parents=True)
+    write_sphere(src / "a.tw")
+    write_sphere(src / "sub" / "b.tw", sign=-1.0)
+    (src / "sub" / "bad.tw").write_bytes(b"TWV\x00 truncated")
+    out = tmp_path / "out"
+    code = (
+        "import sys; from tetweave_codec.cli.main import main; "
+        f"main(['decode', {str(src)!r}, '-o', {str(out)!r}, '--jobs', '2', '--format', 'ply'])"
+    )
+    env = {**os.environ, "PYTHONPATH": str(blocker.parent)}
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, env=env)
+    assert done.returncode == 1, done.stderr  # the truncated file fails, the others are written
+    assert "3 files: 2 ok, 0 skipped, 1 failed" in done.stdout
+    assert "sub/bad.tw" in done.stderr and "Traceback" not in done.stderr
+    assert sorted(p.relative_to(out).as_posix() for p in out.rglob("*")) == ["a.ply", "sub", "sub/b.ply"]
+    for rel in ("a", "sub/b"):
+        v, f = load_mesh(out / f"{rel}.ply")
+        ref_v, ref_f = decode_bytes((src / f"{rel}.tw").read_bytes())
+        assert len(f) > 100 and np.array_equal(f, ref_f)
+        np.testing.assert_allclose(v, ref_v, atol=1e-6)
+    check = subprocess.run([sys.executable, "-c", "import torch"], capture_output=True, text=True, env=env)
+    assert check.returncode != 0  # the blocker works

@@ -105,10 +105,12 @@ def failed(exc: BaseException, t0: float) -> dict:
 def encode_file(task: Task) -> dict:
     """Fit and pack one mesh with `EncodeOptions(**task.options)`; sets torch's threads to the options' first.
 
-    Returns {"status": "ok", "data": .tw bytes, "bytes", "points" (stored), "chamfer", "device", "seconds",
-    "mesh_sha256"} or a failed result with the one-line error. Same task, same bytes, in any process.
+    Returns {"status": "ok", "data": .tw bytes, "bytes", "points" (stored), "points_target" (grid points of the
+    fit), "chamfer", "device", "seconds", "mesh_sha256" (`mesh_sha256` of the loaded mesh)} or a failed result
+    with the one-line error (and mesh_sha256 when the mesh loaded). Same task, same bytes, in any process.
     """
     t0 = time.perf_counter()
+    mesh_key: dict = {}
     try:
         import torch
 
@@ -119,19 +121,21 @@ def encode_file(task: Task) -> dict:
         if options.threads:
             torch.set_num_threads(options.threads)
         vertices, faces = load_mesh(Path(task.input), task.data)
+        mesh_key["mesh_sha256"] = mesh_sha256(vertices, faces)
         result = encode(vertices, faces, **options.encoder_kwargs(resolve_device(options.device)))
     except Exception as exc:  # bad input, unreachable target, a bug: a failed record, never a stopped batch
-        return failed(exc, t0)
+        return {**failed(exc, t0), **mesh_key}
     st = result.stats
     return {
         "status": "ok",
         "data": result.data,
         "bytes": st["bytes"],
         "points": st["points_kept"],
+        "points_target": st["points_target"],
         "chamfer": st["chamfer"],
         "device": st["device"],
         "seconds": time.perf_counter() - t0,
-        "mesh_sha256": mesh_sha256(vertices, faces),
+        **mesh_key,
     }
 
 
