@@ -365,3 +365,24 @@ def test_picture_cameras_see_three_faces_of_a_box_and_close_up_on_its_surface():
     on_surface = np.max(np.abs(hits), axis=1) <= 0.8 + 1e-3
     assert on_surface.any()  # the close-up ray hits the box
     assert close_up.fov_deg < overview.fov_deg
+
+
+def test_bench_tetweave_encodes_through_the_runner(mesh_dir):
+    """`tetweave bench --jobs`: the tetweave fits run first in worker processes; the rows then carry the workers'
+    bytes (those of an in-process encode at the same thread count) and times, and other methods are untouched."""
+    import torch
+
+    from tetweave_codec.benchmarks.batch import Precomputed, precompute
+    from tetweave_codec.runner.executors import LocalExecutor
+
+    paths = find_meshes(mesh_dir)
+    method = TetweaveMethod(256, sh_degree=1, quality="fast", iters=4, device="cpu", seed=0)
+    other = DracoMethod(11)
+    methods = precompute(paths, [other, method], LocalExecutor(2), torch.get_num_threads())
+    assert methods[0] is other and isinstance(methods[1], Precomputed) and methods[1].name == method.name
+    rows = [r for r in run_batch(paths, methods, OPTIONS) if r["family"] == "tetweave"]
+    assert [r["mesh"] for r in rows] == ["ball", "block"] and all(r["error"] == "" for r in rows)
+    assert all(r["encode_s"] > 0 and r["watertight"] for r in rows)
+    in_process = method.encode(*sphere(1.0, 40))
+    assert rows[0]["bytes"] == len(in_process)
+    assert in_process in [r["data"] for r in methods[1].results.values()]
