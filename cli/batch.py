@@ -32,6 +32,20 @@ def jobs_option(what: str):
     )
 
 
+def ray_option(what: str):
+    """`--ray [ADDRESS]` (parameter `ray_value`; see `split_ray`)."""
+    return click.option(
+        "--ray",
+        "ray_value",
+        is_flag=False,
+        flag_value=RAY_LOCAL,
+        default=None,
+        metavar="[ADDRESS]",
+        help=f"{what} on Ray, one task per file: 'auto' = an existing cluster, HOST:PORT or ray://HOST:PORT a given "
+        'one, no address = a local Ray for this run. Needs pip install "tetweave[ray]".',
+    )
+
+
 def split_ray(value: str | None, inputs: tuple[str, ...]) -> tuple[bool, str | None, tuple[str, ...]]:
     """(use Ray, address or None for a local Ray, inputs). `--ray` takes an optional value, so `--ray mesh.ply`
     reads the input as the address: a value that does not look like an address is given back to the inputs."""

@@ -14,7 +14,7 @@ from pathlib import Path
 import click
 
 from tetweave_codec.benchmarks.methods import DECIMATE_DRACO, DRACO, FAMILIES, TETWEAVE
-from tetweave_codec.cli.batch import RAY_LOCAL, jobs_option, split_ray
+from tetweave_codec.cli.batch import jobs_option, ray_option, split_ray
 from tetweave_codec.cli.common import (
     configure_torch,
     device_option,
@@ -192,15 +192,7 @@ def _command_line(p: dict) -> str:
 @device_option
 @threads_option
 @jobs_option("for the tetweave encodes, which then all run first, in parallel")
-@click.option(
-    "--ray",
-    "ray_value",
-    is_flag=False,
-    flag_value=RAY_LOCAL,
-    default=None,
-    metavar="[ADDRESS]",
-    help="Run the tetweave encodes on Ray (as `tetweave encode --ray`).",
-)
+@ray_option("Run the tetweave encodes")
 def bench(
     mesh_dir: Path,
     out_dir: Path,

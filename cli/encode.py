@@ -8,7 +8,7 @@ from pathlib import Path
 
 import click
 
-from tetweave_codec.cli.batch import RAY_LOCAL, jobs_option, run_files, split_ray
+from tetweave_codec.cli.batch import jobs_option, ray_option, run_files, split_ray
 from tetweave_codec.cli.common import (
     PROGRESS_LINE_SECONDS,
     CountType,
@@ -138,16 +138,7 @@ def _progress_lines(every_s: float = PROGRESS_LINE_SECONDS):
 @click.option("--seed", type=int, default=0, help="Seed of every random choice: same seed, same bytes.")
 @threads_option
 @jobs_option("(batch)")
-@click.option(
-    "--ray",
-    "ray_value",
-    is_flag=False,
-    flag_value=RAY_LOCAL,
-    default=None,
-    metavar="[ADDRESS]",
-    help="Batch on Ray, one task per file: 'auto' = an existing cluster, HOST:PORT or ray://HOST:PORT a given one, "
-    'no address = a local Ray for this run. Needs pip install "tetweave[ray]".',
-)
+@ray_option("Batch")
 @click.option("--force", is_flag=True, help="Batch: encode again the files the manifest says are done.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar.")
 def encode(

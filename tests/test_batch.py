@@ -154,19 +154,23 @@ def test_manifest_skip_rules_and_torn_lines(tmp_path):
 # ------------------------------------------------------------------------------ executors with processes killed
 
 
+def small_files(tmp_path: Path, n: int, options: dict) -> tuple[Path, list]:
+    """n files f0.bin... holding their own names, an output folder, and a task per file writing NAME.out."""
+    src, out = tmp_path / "in", tmp_path / "out"
+    src.mkdir()
+    out.mkdir()
+    names = [f"f{i}.bin" for i in range(n)]
+    for name in names:
+        (src / name).write_bytes(name.encode())
+    return out, make_tasks([src / n for n in names], [out / f"{n}.out" for n in names], out, options)
+
+
 def test_killed_worker_is_retried_once_and_a_second_death_fails(tmp_path):
     """Real worker processes killed with SIGKILL: the file whose worker died once is retried (alone) and
     succeeds; one that kills every worker fails after two attempts; the others of the broken pool still end ok
     and the batch goes on."""
-    src = tmp_path / "in"
-    src.mkdir()
-    names = [f"f{i}.bin" for i in range(5)]
-    for name in names:
-        (src / name).write_bytes(name.encode())
-    out = tmp_path / "out"
-    out.mkdir()
     options = {"scratch": str(tmp_path), "die_once": ["f1.bin"], "die_always": ["f3.bin"], "sleep": 0.2}
-    tasks = make_tasks([src / n for n in names], [out / f"{n}.out" for n in names], out, options)
+    out, tasks = small_files(tmp_path, 5, options)
     from batch_workers import die_once
 
     result = {r["output"]: r for r in run_batch(tasks, die_once, LocalExecutor(2), manifest=Manifest(out))}
@@ -188,14 +192,7 @@ def test_killed_worker_is_retried_once_and_a_second_death_fails(tmp_path):
 def test_interrupt_keeps_finished_files_and_leaves_no_partial_output(tmp_path):
     """Stopping the driver mid-batch (Ctrl-C) terminates the workers; what finished is written and recorded, the
     rest has neither output nor temporary file, and the next run does only the rest."""
-    src = tmp_path / "in"
-    src.mkdir()
-    names = [f"f{i}.bin" for i in range(4)]
-    for name in names:
-        (src / name).write_bytes(name.encode())
-    out = tmp_path / "out"
-    out.mkdir()
-    tasks = make_tasks([src / n for n in names], [out / f"{n}.out" for n in names], out, {"sleep": 0.5})
+    out, tasks = small_files(tmp_path, 4, {"sleep": 0.5})
     from batch_workers import echo
 
     def stop_after_first(record, counts):

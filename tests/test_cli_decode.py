@@ -193,8 +193,9 @@ def test_installed_command_in_a_subprocess(tw_file, tmp_path):
 
 
 def test_directories_as_input_or_output(tw_file, tmp_path):
-    (tmp_path / "dir.tw").mkdir()
-    assert_clean_failure(run("decode", tmp_path / "dir.tw"), message="not a regular file")
+    (tmp_path / "dir.tw").mkdir()  # a directory is a batch of the .tw files in it: -o DIR needed, none found
+    assert_clean_failure(run("decode", tmp_path / "dir.tw"), message="need -o DIR")
+    assert_clean_failure(run("decode", tmp_path / "dir.tw", "-o", tmp_path / "o"), message="no input files found")
     (tmp_path / "dir.obj").mkdir()
     assert_clean_failure(run("decode", tw_file, "-o", tmp_path / "dir.obj"), message="is a directory")
 

@@ -112,16 +112,17 @@ def encode_file(task: Task) -> dict:
     t0 = time.perf_counter()
     mesh_key: dict = {}
     try:
-        import torch
-
-        from tetweave_codec.encoder import encode, resolve_device
         from tetweave_codec.meshio import load_mesh
 
         options = EncodeOptions(**task.options)
+        vertices, faces = load_mesh(Path(task.input), task.data)  # before torch: a bad file fails in a blink
+        mesh_key["mesh_sha256"] = mesh_sha256(vertices, faces)
+        import torch
+
+        from tetweave_codec.encoder import encode, resolve_device
+
         if options.threads:
             torch.set_num_threads(options.threads)
-        vertices, faces = load_mesh(Path(task.input), task.data)
-        mesh_key["mesh_sha256"] = mesh_sha256(vertices, faces)
         result = encode(vertices, faces, **options.encoder_kwargs(resolve_device(options.device)))
     except Exception as exc:  # bad input, unreachable target, a bug: a failed record, never a stopped batch
         return {**failed(exc, t0), **mesh_key}
