@@ -271,6 +271,10 @@ def test_batch_records_failures_and_goes_on(batch):
     src, out, result, _ = batch
     assert result.exit_code == 1, result.output
     assert "5 files: 4 ok, 0 skipped, 1 failed" in result.stdout
+    assert "bytes in " in result.stdout and "median Chamfer distance" in result.stdout
+    # not a terminal: plain progress lines, the last one when all are done, and one line per failed file
+    assert "tetweave encode: 5/5 files (4 ok, 1 failed, 0 skipped)" in result.stderr
+    assert f"tetweave encode: failed: {src / BROKEN}: has non-finite" in result.stderr
     recs = {r["output"]: r for r in records(out)}
     assert set(recs) == {"sphere.tw", "box.tw", "sub/cylinder.tw", "sub/deeper/torus.tw", "broken.tw"}
     assert recs["broken.tw"]["status"] == "failed" and "non-finite" in recs["broken.tw"]["error"]

@@ -199,10 +199,14 @@ class RayExecutor:
         self._started = not ray.is_initialized()
         if self._started:
             kwargs = dict(include_dashboard=False, log_to_driver=False, logging_level=logging.ERROR)
-            if address:
-                ray.init(address=address, **kwargs)
-            else:
-                ray.init(num_cpus=local_cpus or available_cores(), **kwargs)
+            try:
+                if address:
+                    ray.init(address=address, **kwargs)
+                else:
+                    ray.init(num_cpus=local_cpus or available_cores(), **kwargs)
+            except Exception as exc:  # no cluster at that address, a version mismatch, ...
+                where = f"the Ray cluster at {address}" if address else "a local Ray"
+                raise InputError(f"cannot start or reach {where}: {' '.join(str(exc).split())[:300]}") from None
         self.threads = max(1, int(threads))
         self.gpus = gpus
         cpus = int(ray.cluster_resources().get("CPU", 1))
