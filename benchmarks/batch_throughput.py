@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import shutil
 import statistics
 import subprocess
@@ -71,13 +72,15 @@ def run_config(name: str, inputs: Path, out: Path, args: argparse.Namespace) -> 
     cmd = [sys.executable, "-m", "tetweave_codec.cli", "encode", str(inputs), "-o", str(out)]
     cmd += ["--size", args.size, "--quality", args.quality, "--device", "cpu", "--seed", "0", "-q"]
     cmd += ["--jobs", str(jobs), "--threads", str(threads), *(["--ray"] if ray else [])]
+    load_before = os.getloadavg()[0]
     t0 = time.perf_counter()
     done = subprocess.run(cmd, capture_output=True, text=True)
     wall = time.perf_counter() - t0
+    load = (load_before, os.getloadavg()[0])  # how busy the machine was: others' work slows every runner
     records = [json.loads(line) for line in (out / "manifest.jsonl").read_text().splitlines()]
     print(f"{name}: exit {done.returncode}, {wall:.1f}s\n{done.stdout.strip()}", file=sys.stderr)
     return {"name": name, "jobs": jobs, "threads": threads, "ray": ray, "wall": wall, "records": records,
-            "command": "tetweave " + " ".join(cmd[4:]), "exit": done.returncode}  # fmt: skip
+            "command": "tetweave " + " ".join(cmd[4:]), "exit": done.returncode, "load": load}  # fmt: skip
 
 
 def delaunay_share(size: int, quality: str) -> tuple[float, float]:
@@ -119,8 +122,10 @@ def report(results: list[dict], args: argparse.Namespace, share: tuple[float, fl
         "",
         f"`python -m tetweave_codec.benchmarks.batch_throughput {' '.join(sys.argv[1:])}`",
         "",
-        "| runner | command | files | ok | wall s | files per hour | per-file s (median, min-max) |",
-        "|---|---|---:|---:|---:|---:|---|",
+        f"Machine: {os.cpu_count()} cores; load average (1 min) before -> after each run in the last column.",
+        "",
+        "| runner | command | files | ok | wall s | files per hour | per-file s (median, min-max) | load |",
+        "|---|---|---:|---:|---:|---:|---|---|",
     ]
     per_file_1thread = []
     for r in results:
@@ -131,8 +136,10 @@ def report(results: list[dict], args: argparse.Namespace, share: tuple[float, fl
         if r["threads"] == 1:
             per_file_1thread += secs
         spread = f"{med:.1f} ({min(secs):.1f}-{max(secs):.1f})" if secs else "-"
+        load = f"{r['load'][0]:.1f} -> {r['load'][1]:.1f}"
         lines.append(
-            f"| {r['name']} | `{r['command']}` | {n} | {ok} | {r['wall']:.0f} | {3600 * n / r['wall']:.0f} | {spread} |"
+            f"| {r['name']} | `{r['command']}` | {n} | {ok} | {r['wall']:.0f} | {3600 * n / r['wall']:.0f} | {spread} "
+            f"| {load} |"
         )
     lines += ["", "Bytes: " + _same_bytes(results), ""]
     if per_file_1thread:
