@@ -80,7 +80,7 @@ def run_config(name: str, inputs: Path, out: Path, args: argparse.Namespace) -> 
     records = [json.loads(line) for line in (out / "manifest.jsonl").read_text().splitlines()]
     print(f"{name}: exit {done.returncode}, {wall:.1f}s\n{done.stdout.strip()}", file=sys.stderr)
     return {"name": name, "jobs": jobs, "threads": threads, "ray": ray, "wall": wall, "records": records,
-            "command": "tetweave " + " ".join(cmd[4:]), "exit": done.returncode, "load": load}  # fmt: skip
+            "command": "tetweave encode INPUTS -o OUT " + " ".join(cmd[8:]), "exit": done.returncode, "load": load}  # fmt: skip
 
 
 def delaunay_share(size: int, quality: str) -> tuple[float, float]:
