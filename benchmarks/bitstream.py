@@ -32,7 +32,7 @@ from tetweave_codec.decoder import decode, decode_detailed
 from tetweave_codec.encoder import pack_result
 from tetweave_codec.fit.config import QUALITY, FitConfig, Quantization, default_quantization
 from tetweave_codec.fit.finish import finish
-from tetweave_codec.fit.loop import FitResult, deterministic_torch, main_stage, prepare, start
+from tetweave_codec.fit.loop import FitResult, deterministic_torch, fit_main
 from tetweave_codec.meshio import load_mesh, normalize
 from tetweave_codec.metrics import chamfer_distance
 
@@ -114,12 +114,10 @@ def run_mesh(path: Path, points: int, quality: str, sweep: list[Quantization], r
     vertices, faces = load_mesh(path)
     normalized, scale, offset = normalize(vertices)
     config = FitConfig(points=points, schedule=QUALITY[quality], quantization=None)
+    t0 = time.perf_counter()
+    ctx, params = fit_main(normalized, faces, config, "cpu")
+    base = time.perf_counter() - t0
     with deterministic_torch():
-        t0 = time.perf_counter()
-        ctx = prepare(normalized, faces, config, torch.device("cpu"), lambda *a: None)
-        params = start(normalized, faces, ctx)
-        params = main_stage(params, ctx)
-        base = time.perf_counter() - t0
         variants = [None, default_quantization(points), *sweep]
         rows = []
         for quant in variants:

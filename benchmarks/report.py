@@ -3,7 +3,8 @@
 Matched-error verdict. Each family's settings give points (Chamfer distance, bytes); its Pareto front and the
 size on it at a given error come from `tetweave_codec.metrics.rate_distortion` (log-log interpolation, never
 extrapolated). The verdict compares, at the Chamfer distance of each setting of the focus family (tetweave when
-present, else decimate+Draco), the sizes of all families.
+present, else the strongest classical family present), the sizes of all families, names the smallest, and sets the
+focus setting's normal consistency beside that of the best classical file that fits in the same bytes.
 """
 
 from __future__ import annotations
@@ -12,20 +13,22 @@ import csv
 import io
 import math
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from tetweave_codec.benchmarks.batch import COLUMNS, INPUT_FAMILY, MeshResult
-from tetweave_codec.benchmarks.methods import DECIMATE_DRACO, DRACO, FAMILIES, TETWEAVE
+from tetweave_codec.benchmarks.methods import CLASSICAL, DECIMATE_DRACO, DRACO, FAMILIES, MLAB_DRACO, TETWEAVE
 from tetweave_codec.meshio import write_bytes_atomic
 from tetweave_codec.metrics.rate_distortion import bytes_at, pareto_front
 
-FOCUS_ORDER = (TETWEAVE, DECIMATE_DRACO, DRACO)  # the family the verdict is about, first present wins
+FOCUS_ORDER = (TETWEAVE, MLAB_DRACO, DECIMATE_DRACO, DRACO)  # the family the verdict is about, first present wins
 PICTURE_FAMILIES = FAMILIES
 CURVE_STYLE = {
     DRACO: ("tab:blue", "o"),
     DECIMATE_DRACO: ("tab:orange", "s"),
+    MLAB_DRACO: ("tab:red", "D"),
     TETWEAVE: ("tab:green", "^"),
 }
 
@@ -106,38 +109,147 @@ def family_fronts(rows: Sequence[dict]) -> dict[str, list[tuple[float, float]]]:
     return fronts
 
 
-def verdict(rows: Sequence[dict]) -> list[str]:
-    """Markdown bullets: at each focus setting's error, every family's interpolated size and the smallest."""
+@dataclass(frozen=True)
+class MatchedPoint:
+    """One setting of the focus family compared with the other families at its Chamfer distance.
+
+    sizes: family -> bytes interpolated on that family's front at `error` (families whose front does not reach
+    `error` are absent). best: the smallest of them. nc: the setting's normal consistency; nc_classical /
+    classical_setting: the highest normal consistency of a classical file no larger than `size` (None when no
+    classical file is that small).
+    """
+
+    focus: str
+    setting: str
+    error: float
+    size: float
+    sizes: dict[str, float]
+    nc: float | None
+    nc_classical: float | None
+    classical_setting: str
+
+    @property
+    def best(self) -> tuple[str, float] | None:
+        return min(self.sizes.items(), key=lambda kv: kv[1]) if self.sizes else None
+
+    @property
+    def ratio(self) -> float | None:
+        """Focus bytes / best other family's bytes at the same error (< 1: the focus family is smaller)."""
+        best = self.best
+        return None if best is None else self.size / best[1]
+
+
+def _best_classical_nc(rows: Sequence[dict], budget: float) -> tuple[float | None, str]:
+    """The highest normal consistency among classical files of at most `budget` bytes, and its setting."""
+    candidates = [
+        r
+        for r in ok_rows(rows)
+        if r["family"] in CLASSICAL and _num(r["bytes"]) <= budget and _num(r.get("normal_consistency")) is not None
+    ]
+    if not candidates:
+        return None, ""
+    best = max(candidates, key=lambda r: _num(r["normal_consistency"]))
+    return _num(best["normal_consistency"]), f"{best['family']} {best['setting']}"
+
+
+def matched_points(rows: Sequence[dict]) -> tuple[str | None, list[MatchedPoint]]:
+    """(focus family, one MatchedPoint per successful focus setting, smallest first) for one mesh's rows."""
     fronts = family_fronts(rows)
     focus = next((f for f in FOCUS_ORDER if f in fronts), None)
     if focus is None:
-        return ["- no method succeeded on this mesh"]
+        return None, []
     others = [f for f in FOCUS_ORDER if f in fronts and f != focus]
-    if not others:
-        return [f"- only {focus} succeeded; nothing to compare with"]
-    lines = []
-    wins = compared = 0
+    points = []
     for row in sorted(ok_rows(rows, focus), key=lambda r: _num(r["bytes"])):
         error, size = _num(row["chamfer"]), _num(row["bytes"])
         sizes = {f: bytes_at(fronts[f], error) for f in others}
-        known = {f: b for f, b in sizes.items() if b is not None}
-        head = f"- at CD {error:.3g} ({focus} {row['setting']}, {size:,.0f} B):"
-        if not known:
-            ranges = ", ".join(f"{f} {fronts[f][0][0]:.2g}-{fronts[f][-1][0]:.2g}" for f in others)
-            lines.append(f"{head} outside the other methods' Chamfer ranges ({ranges})")
+        nc_classical, classical_setting = _best_classical_nc(rows, size)
+        points.append(
+            MatchedPoint(
+                focus=focus,
+                setting=row["setting"],
+                error=error,
+                size=size,
+                sizes={f: b for f, b in sizes.items() if b is not None},
+                nc=_num(row.get("normal_consistency")),
+                nc_classical=nc_classical,
+                classical_setting=classical_setting,
+            )
+        )
+    return focus, points
+
+
+def _nc_text(point: MatchedPoint) -> str:
+    if point.nc is None or point.nc_classical is None or point.focus in CLASSICAL:
+        return ""
+    return (
+        f"; NC {point.nc:.4f} vs {point.nc_classical:.4f} (best classical file within {point.size:,.0f} B: "
+        f"{point.classical_setting})"
+    )
+
+
+def verdict(rows: Sequence[dict]) -> list[str]:
+    """Markdown bullets: at each focus setting's error, every family's interpolated size, the smallest, and
+    normal consistency against the best classical file of at most the same bytes."""
+    focus, points = matched_points(rows)
+    if focus is None:
+        return ["- no method succeeded on this mesh"]
+    if all(f == focus for f in family_fronts(rows)):
+        return [f"- only {focus} succeeded; nothing to compare with"]
+    lines = []
+    wins = compared = 0
+    for p in points:
+        head = f"- at CD {p.error:.3g} ({focus} {p.setting}, {p.size:,.0f} B):"
+        best = p.best
+        if best is None:
+            fronts = family_fronts(rows)
+            ranges = ", ".join(f"{f} {fr[0][0]:.2g}-{fr[-1][0]:.2g}" for f, fr in fronts.items() if f != focus)
+            lines.append(f"{head} outside the other methods' Chamfer ranges ({ranges}){_nc_text(p)}")
             continue
         compared += 1
-        parts = [f"{f} ≈ {b:,.0f} B" for f, b in known.items()]
-        best_other, best_size = min(known.items(), key=lambda kv: kv[1])
-        if size <= best_size:
+        parts = [f"{f} ≈ {b:,.0f} B" for f, b in p.sizes.items()]
+        best_other, best_size = best
+        if p.size <= best_size:
             wins += 1
-            tail = f"smallest: **{focus}** ({best_size / size:.2f}× smaller than {best_other})"
+            tail = f"smallest: **{focus}** ({best_size / p.size:.2f}× smaller than {best_other})"
         else:
-            tail = f"smallest: **{best_other}** ({size / best_size:.2f}× smaller than {focus})"
-        lines.append(f"{head} {', '.join(parts)} → {tail}")
+            tail = f"smallest: **{best_other}** ({p.size / best_size:.2f}× smaller than {focus})"
+        lines.append(f"{head} {', '.join(parts)} → {tail}{_nc_text(p)}")
     outside = len(lines) - compared
     note = f"; {outside} of its settings fall outside the others' error range" if outside else ""
     lines.insert(0, f"- **{focus} is smallest at {wins} of {compared} matched-error points**{note}")
+    return lines
+
+
+def overall(rows: Sequence[dict]) -> list[str]:
+    """Markdown lines over every mesh: focus bytes ÷ the best other family's bytes at matched Chamfer distance
+    (median, range, wins), and normal consistency against the best classical file of at most the same bytes."""
+    ratios, nc_gaps, names = [], [], []
+    focus = None
+    for mesh_rows in rows_by_mesh(rows).values():
+        mesh_focus, points = matched_points(mesh_rows)
+        focus = focus or mesh_focus
+        for p in points:
+            if p.ratio is not None:
+                ratios.append(p.ratio)
+                names.append(p.best[0])
+            if p.nc is not None and p.nc_classical is not None and p.focus not in CLASSICAL:
+                nc_gaps.append(p.nc - p.nc_classical)
+    if not ratios:
+        return ["- no matched-error points"]
+    smaller = sum(r <= 1.0 for r in ratios)
+    best_counts = ", ".join(f"{f} {names.count(f)}" for f in dict.fromkeys(names))
+    lines = [
+        f"- {focus} bytes ÷ the best other family's bytes at matched Chamfer distance over {len(ratios)} points: "
+        f"median **{float(np.median(ratios)):.2f}×** (range {min(ratios):.2f}–{max(ratios):.2f}); {focus} "
+        f"smaller at {smaller} of {len(ratios)} (best other family: {best_counts})"
+    ]
+    if nc_gaps:
+        lines.append(
+            f"- normal consistency minus that of the best classical file of at most the same bytes: median "
+            f"{float(np.median(nc_gaps)):+.4f} (range {min(nc_gaps):+.4f} to {max(nc_gaps):+.4f}, "
+            f"{sum(g >= -0.005 for g in nc_gaps)} of {len(nc_gaps)} within 0.005 or better)"
+        )
     return lines
 
 
@@ -232,7 +344,12 @@ def write_summary(
     out += [
         "Each family's sizes are interpolated along its Pareto front in log-log (bytes against Chamfer",
         "distance) at the error of each setting of the focus family (tetweave when present); sizes outside a",
-        "front's range are not extrapolated.",
+        "front's range are not extrapolated. NC: normal consistency of the focus setting against the highest NC",
+        "of a classical file (Draco, decimate+Draco, MeshLab+Draco) no larger than it.",
+        "",
+        "### All meshes",
+        "",
+        *overall(rows),
         "",
     ]
     for mesh, mesh_rows in by_mesh.items():
@@ -309,8 +426,8 @@ def plot_rate_distortion(rows: Sequence[dict], path: str | Path, title: str = ""
 def comparable_rows(rows: Sequence[dict]) -> list[dict]:
     """One row per family for the side-by-side picture, at comparable sizes.
 
-    The reference is the middle-sized tetweave setting (or, without tetweave, the middle-sized decimate+Draco
-    one); every other family contributes its setting closest to that size in log scale.
+    The reference is the middle-sized setting of the first family of FOCUS_ORDER present (tetweave when
+    present); every other family contributes its setting closest to that size in log scale.
     """
     for family in FOCUS_ORDER:
         candidates = sorted(ok_rows(rows, family), key=lambda r: _num(r["bytes"]))

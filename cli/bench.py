@@ -1,4 +1,5 @@
-"""`tetweave bench`: compress every mesh of a folder with tetweave, Draco and decimation + Draco, and report.
+"""`tetweave bench`: compress every mesh of a folder with tetweave, Draco and decimation + Draco (fast-simplification
+and MeshLab), and report.
 
 Writes into --out: results.csv (one row per mesh, method and setting), summary.md (verdict at matched Chamfer
 distance and a table per mesh), rd_<mesh>.png (bytes against Chamfer distance) and side_by_side_<mesh>.png.
@@ -13,7 +14,7 @@ from pathlib import Path
 
 import click
 
-from tetweave_codec.benchmarks.methods import DECIMATE_DRACO, DRACO, FAMILIES, TETWEAVE
+from tetweave_codec.benchmarks.methods import DECIMATE_DRACO, DRACO, FAMILIES, MLAB_DRACO, TETWEAVE
 from tetweave_codec.cli.batch import jobs_option, ray_option, split_ray
 from tetweave_codec.cli.common import (
     configure_torch,
@@ -23,6 +24,7 @@ from tetweave_codec.cli.common import (
     quality_option,
     threads_option,
 )
+from tetweave_codec.errors import TetweaveError
 from tetweave_codec.geometry.sh import SH_DEGREE_MAX
 
 
@@ -120,6 +122,8 @@ def _command_line(p: dict) -> str:
         args += ["--draco-bits", join(p["draco_bits"])]
     if DECIMATE_DRACO in methods:
         args += ["--decimate", join(p["keep"]), "--decimate-bits", join(p["decimate_bits"])]
+    if MLAB_DRACO in methods:
+        args += ["--mlab", join(p["mlab_keep"]), "--mlab-bits", join(p["mlab_bits"])]
     args += ["--samples", str(p["samples"]), "--seed", str(p["seed"])]
     args += [] if p["pictures"] else ["--no-pictures"]
     args += ["--threads", str(p["threads"])] if p["threads"] else []
@@ -139,7 +143,8 @@ def _command_line(p: dict) -> str:
     "--methods",
     default=",".join(FAMILIES),
     callback=_methods,
-    help=f"Comma-separated methods among: {', '.join(FAMILIES)}.",
+    help=f"Comma-separated methods among: {', '.join(FAMILIES)} (mlab+draco needs pymeshlab: "
+    '"tetweave[bench]"; left out of the default when it is missing).',
 )
 @click.option(
     "--points",
@@ -182,6 +187,19 @@ def _command_line(p: dict) -> str:
     help="decimate+draco: Draco quantization bits after decimation, comma-separated.",
 )
 @click.option(
+    "--mlab",
+    "mlab_keep",
+    default="0.5,0.2,0.1,0.05,0.02,0.01,0.005",
+    callback=_fractions,
+    help="mlab+draco (MeshLab quadric edge collapse, optimal placement): fractions of the faces kept.",
+)
+@click.option(
+    "--mlab-bits",
+    default="9,10,11,12",
+    callback=_ints(1, 30),
+    help="mlab+draco: Draco quantization bits after decimation, comma-separated.",
+)
+@click.option(
     "--samples",
     type=click.IntRange(min=1000),
     default=200_000,
@@ -205,6 +223,8 @@ def bench(
     draco_bits: list[int],
     keep: list[float],
     decimate_bits: list[int],
+    mlab_keep: list[float],
+    mlab_bits: list[int],
     samples: int,
     seed: int,
     pictures: bool,
@@ -221,7 +241,13 @@ def bench(
     in its rows and the batch goes on.
     """
     from tetweave_codec.benchmarks import report
-    from tetweave_codec.benchmarks.baselines import decimate_draco_methods, draco_methods
+    from tetweave_codec.benchmarks.baselines import (
+        MLAB_MISSING,
+        decimate_draco_methods,
+        draco_methods,
+        mlab_available,
+        mlab_draco_methods,
+    )
     from tetweave_codec.benchmarks.batch import find_meshes, run_batch
     from tetweave_codec.benchmarks.methods import TetweaveMethod
     from tetweave_codec.metrics.common import MetricOptions
@@ -231,6 +257,14 @@ def bench(
 
     def say(message: str) -> None:
         click.echo(f"[{time.perf_counter() - t_start:7.1f}s] {message}", err=True)
+
+    ctx = click.get_current_context()
+    if MLAB_DRACO in methods and not mlab_available():
+        if ctx.get_parameter_source("methods") != click.core.ParameterSource.DEFAULT:
+            raise TetweaveError(MLAB_MISSING)
+        methods = [m for m in methods if m != MLAB_DRACO]
+        ctx.params["methods"] = methods
+        say(f"{MLAB_MISSING}; running without it")
 
     if TETWEAVE in methods:
         device = str(configure_torch(threads, device))
@@ -245,6 +279,8 @@ def bench(
         method_list += draco_methods(draco_bits)
     if DECIMATE_DRACO in methods:
         method_list += decimate_draco_methods(keep, decimate_bits)
+    if MLAB_DRACO in methods:
+        method_list += mlab_draco_methods(mlab_keep, mlab_bits)
     if TETWEAVE in methods:
         # A run is a point count, or a target size (rate control picks the points).
         runs = [(n, None, f"{n} pts") for n in points] + [(0, s, f"size {s}") for s in sizes]
@@ -264,7 +300,7 @@ def bench(
         ]
     out_dir.mkdir(parents=True, exist_ok=True)
     options = MetricOptions.for_samples(samples, seed=seed)
-    command = _command_line(click.get_current_context().params)
+    command = _command_line(ctx.params)
     rows: list[dict] = []
     images: dict[str, list[str]] = {}
 

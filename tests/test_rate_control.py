@@ -111,10 +111,10 @@ def test_max_error_search_on_a_model_of_the_error(monkeypatch, k, floor):
 
     def fake_fit(job, n, quant, decode):
         calls.append(n)
-        return (None, None, b"", k / n + floor, None)
+        return rate_control.Trial(None, None, b"", k / n + floor, None)
 
     monkeypatch.setattr(rate_control, "_fit_and_measure", fake_fit)
-    monkeypatch.setattr(rate_control, "_smallest_within", lambda job, run, e, n, decode, alpha: (n, run[3]))
+    monkeypatch.setattr(rate_control, "_smallest_within", lambda job, run, e, n, decode, alpha: (n, run.error))
     target = 1e-3
     needed = k / (target - floor)
     if needed > rate_control.MAX_RATE_POINTS:
@@ -127,6 +127,6 @@ def test_max_error_search_on_a_model_of_the_error(monkeypatch, k, floor):
 
 
 def test_max_error_search_refuses_what_no_allowed_fit_reaches(monkeypatch):
-    monkeypatch.setattr(rate_control, "_fit_and_measure", lambda job, n, q, d: (None, None, b"", 5e-3, None))
+    monkeypatch.setattr(rate_control, "_fit_and_measure", lambda job, n, q, d: rate_control.Trial(None, None, b"", 5e-3, None))
     with pytest.raises(InputError, match="could not reach|out of reach"):
         rate_control.encode_to_error(None, 1e-3)

@@ -20,7 +20,7 @@ from tetweave_codec.errors import InputError
 from tetweave_codec.fit.config import FitConfig, Quantization, default_quantization, schedule_for
 from tetweave_codec.fit.finish import FinishResult, finish
 from tetweave_codec.fit.loop import FitResult, deterministic_torch
-from tetweave_codec.fit.step import FitContext, Params, ProgressFn, noop_progress
+from tetweave_codec.fit.step import FitContext, Params, ProgressFn
 from tetweave_codec.geometry.sh import check_degree
 from tetweave_codec.geometry.triangles import face_areas
 
@@ -161,17 +161,10 @@ class Job:
         )
 
     def main_stage(self, points: int, quantization: Quantization | None) -> tuple[FitContext, Params]:
-        """Targets, start and main stage of a fit at `points`; returns its context and parameters."""
-        from tetweave_codec.fit.loop import main_stage, prepare, start
+        """Targets, start and main stage of a fit at `points` (`fit.loop.fit_main`); its context and parameters."""
+        from tetweave_codec.fit.loop import fit_main
 
-        with deterministic_torch():
-            config = self.config(points, quantization)
-            ctx = prepare(self.normalized, self.f, config, self.device, self.progress or noop_progress)
-            params = start(self.normalized, self.f, ctx)
-            t0 = time.perf_counter()
-            params = main_stage(params, ctx)
-            ctx.seconds["main"] = time.perf_counter() - t0
-        return ctx, params
+        return fit_main(self.normalized, self.f, self.config(points, quantization), self.device, self.progress)
 
     def pack(self, fin: FinishResult, ctx: FitContext) -> bytes:
         return pack_result(

@@ -19,12 +19,15 @@ A target out of reach raises InputError (the CLI prints one line and exits 2 wit
 from __future__ import annotations
 
 import math
-from dataclasses import replace
+from dataclasses import dataclass, replace
+
+import numpy as np
 
 from tetweave_codec.errors import InputError
 from tetweave_codec.fit.config import Quantization, default_quantization
 from tetweave_codec.fit.finish import FinishResult, complete, finalize, requantize
 from tetweave_codec.fit.loop import deterministic_torch
+from tetweave_codec.fit.step import FitContext
 
 # v2 bytes per fitted grid point at the default quantization (kept fraction x bits per kept point / 8), measured
 # with benchmarks/bitstream.py on the four development meshes before s prediction: 2.42-2.64 at 4K points,
@@ -50,6 +53,30 @@ MAX_ERROR_FITS = 3
 PRIOR_SPREAD = 4.0  # refuse without fitting when the prior asks for more than this many times MAX_RATE_POINTS
 # Step multipliers tried on s (and c with them) around the default, from coarse to fine.
 STEP_SCALES = (2.8, 2.0, 1.4, 1.0, 0.7, 0.5)
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """A quantization tried on the finalized points of a --size fit: `estimate` bytes of the file it would pack
+    (s and c estimated from their values before the late stage), at `position_bits` and steps `scale` x the
+    default."""
+
+    estimate: int
+    position_bits: int
+    scale: float
+    quantization: Quantization
+
+
+@dataclass
+class Trial:
+    """One full fit of a --max-error search at some point count: its context, finished symbols, bytes, the
+    decoded mesh's Chamfer distance to the input and the decoded mesh (vertices (V,3), faces (F,3))."""
+
+    ctx: FitContext
+    result: FinishResult
+    data: bytes
+    error: float
+    decoded: tuple[np.ndarray, np.ndarray]
 
 
 def bytes_per_point(points: int) -> float:
@@ -104,20 +131,19 @@ def encode_to_size(job, size: int, *, measure: bool = True):
             for scale in STEP_SCALES:
                 quant = _scaled(base, scale, bits)
                 est = len(job.pack(requantize(fin.points, fin.cells, fin.s, fin.c, quant, job.sh_degree), ctx))
-                candidates.append((est, bits, scale, quant))
-        fitting = [c for c in candidates if c[0] <= SIZE_AIM * size]
+                candidates.append(Candidate(est, bits, scale, quant))
+        fitting = [c for c in candidates if c.estimate <= SIZE_AIM * size]
         # Prefer the default grid when it fits at some step, since a finer grid buys little error (see
         # default_quantization); otherwise the largest estimate under the aim; otherwise the smallest file.
-        on_default = [c for c in fitting if c[1] == base.position_bits and c[2] <= 2.0]
+        on_default = [c for c in fitting if c.position_bits == base.position_bits and c.scale <= 2.0]
         if on_default:
-            chosen = max(on_default, key=lambda c: c[0])
+            chosen = max(on_default, key=lambda c: c.estimate)
         elif fitting:
-            chosen = max(fitting, key=lambda c: c[0])
+            chosen = max(fitting, key=lambda c: c.estimate)
         else:
-            chosen = min(candidates, key=lambda c: c[0])
-        _, bits, scale, quant = chosen
-        fin = finals[bits]
-        result = complete(fin, ctx, quant)
+            chosen = min(candidates, key=lambda c: c.estimate)
+        bits, scale = chosen.position_bits, chosen.scale
+        result = complete(finals[bits], ctx, chosen.quantization)
     data = job.pack(result, ctx)
     # Nudge the steps (no refit) into [SIZE_FLOOR * size, size].
     result, data = _fit_band(job, ctx, result, data, size)
@@ -180,36 +206,36 @@ def encode_to_error(job, max_error: float):
             f"{int(min(PRIOR_ERROR_POINTS / aim, 1e12)):,} points for it "
             f"(rate control fits at most {MAX_RATE_POINTS:,})"
         )
-    runs = {}
+    runs: dict[int, Trial] = {}
     n = _clamp_points(PRIOR_ERROR_POINTS / aim)
     for _ in range(MAX_ERROR_FITS):
         runs[n] = _fit_and_measure(job, n, default_quantization(n), decode)
-        met = sorted(k for k, r in runs.items() if r[3] <= max_error)
-        missed = sorted(k for k, r in runs.items() if r[3] > max_error)
-        if met and runs[met[0]][3] >= CLOSE_ENOUGH * max_error:
+        met = sorted(k for k, r in runs.items() if r.error <= max_error)
+        missed = sorted(k for k, r in runs.items() if r.error > max_error)
+        if met and runs[met[0]].error >= CLOSE_ENOUGH * max_error:
             break
         if met and missed and missed[-1] < met[0]:  # bracketed: interpolate in log-log
             lo, hi = missed[-1], met[0]
             if hi <= lo * 1.15:
                 break
-            e_lo, e_hi = runs[lo][3], runs[hi][3]
+            e_lo, e_hi = runs[lo].error, runs[hi].error
             t = math.log(e_lo / (ERROR_AIM_BRACKET * max_error)) / math.log(e_lo / e_hi)
             nxt = int(round(math.exp(math.log(lo) + min(max(t, 0.2), 0.8) * math.log(hi / lo))))
         elif met:  # every fit met it, with a margin: shrink
-            nxt = _clamp_points(met[0] * runs[met[0]][3] / (ERROR_AIM_SHRINK * max_error))
+            nxt = _clamp_points(met[0] * runs[met[0]].error / (ERROR_AIM_SHRINK * max_error))
             if nxt >= met[0] * 0.85:
                 break
         else:  # none met it: grow
             top = missed[-1]
-            nxt = _needed(top * (runs[top][3] / aim) ** (1.0 / PRIOR_ALPHA), max_error, top, runs[top][3])
+            nxt = _needed(top * (runs[top].error / aim) ** (1.0 / PRIOR_ALPHA), max_error, top, runs[top].error)
         if nxt in runs:
             break
         n = nxt
-    met = sorted(k for k, r in runs.items() if r[3] <= max_error)
+    met = sorted(k for k, r in runs.items() if r.error <= max_error)
     if not met:
         top = max(runs)
         raise InputError(
-            f"could not reach a maximum error of {max_error:.3g}: {top:,} points reached {runs[top][3]:.3g}"
+            f"could not reach a maximum error of {max_error:.3g}: {top:,} points reached {runs[top].error:.3g}"
         )
     return _smallest_within(job, runs[met[0]], max_error, met[0], decode, _exponent(runs, PRIOR_ALPHA))
 
@@ -228,31 +254,31 @@ def _needed(n: float, max_error: float, fitted: int, err: float) -> int:
     return max(int(n), int(fitted * 1.2) + 1)
 
 
-def _exponent(runs: dict, default: float) -> float:
+def _exponent(runs: dict[int, Trial], default: float) -> float:
     """err ~ N^-alpha between the two largest fits (clamped to [0.3, 1.3]), or `default` with one fit."""
     if len(runs) < 2:
         return default
     (na, ra), (nb, rb) = sorted(runs.items())[-2:]
-    alpha = math.log(max(ra[3], 1e-12) / max(rb[3], 1e-12)) / math.log(nb / na)
+    alpha = math.log(max(ra.error, 1e-12) / max(rb.error, 1e-12)) / math.log(nb / na)
     return min(max(alpha, 0.3), 1.3)
 
 
-def _fit_and_measure(job, points: int, quant: Quantization, decode):
-    """One full fit at `points`: (ctx, result, data, error, decoded mesh)."""
+def _fit_and_measure(job, points: int, quant: Quantization, decode) -> Trial:
+    """One full fit at `points`, packed, decoded and measured."""
     ctx, params = job.main_stage(points, quant)
     with deterministic_torch():
         fin = finalize(params, ctx, quant.position_bits)
         result = complete(fin, ctx, quant)
     data = job.pack(result, ctx)
     out = decode(data)
-    return ctx, result, data, job.chamfer(*out), out
+    return Trial(ctx, result, data, job.chamfer(*out), out)
 
 
-def _smallest_within(job, run, max_error: float, points: int, decode, alpha: float):
+def _smallest_within(job, run: Trial, max_error: float, points: int, decode, alpha: float):
     """Coarser steps on the same fit (no refit) while the error stays within the target; the smallest file."""
-    ctx, result, data, err, out = run
+    ctx, result = run.ctx, run.result
     quant = result.quantization
-    best = (result, data, err, out)
+    best = (result, run.data, run.error, run.decoded)
     for scale in (1.4, 2.0, 2.8):
         trial = requantize(
             result.points, result.cells, result.latent_s, result.latent_c, _scaled(quant, scale), job.sh_degree

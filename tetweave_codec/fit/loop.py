@@ -177,14 +177,29 @@ def fit(
     None: float16 for container v1; else integer symbols for container v2).
     Raises TetweaveError if the fit ends with no surface at all.
     """
+    ctx, params = fit_main(vertices, faces, config, device, progress)
+    with deterministic_torch():
+        result = finish(params, ctx)
+    return FitResult(result, config.sh_degree, ctx.backend, ctx.seconds, ctx.history)
+
+
+def fit_main(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    config: FitConfig,
+    device: torch.device | str = "cpu",
+    progress: ProgressFn | None = None,
+) -> tuple[FitContext, Params]:
+    """prepare -> start -> main stage: the part of a fit every encode path shares (`fit`, the encoder's Job,
+    rate control, benchmarks/bitstream.py); each then finishes it its own way (fit.finish). Returns the context
+    (targets, timings) and the parameters after the main stage."""
     with deterministic_torch():
         ctx = prepare(vertices, faces, config, torch.device(device), progress or noop_progress)
         params = start(vertices, faces, ctx)
         t0 = time.perf_counter()
         params = main_stage(params, ctx)
         ctx.seconds["main"] = time.perf_counter() - t0
-        result = finish(params, ctx)
-    return FitResult(result, config.sh_degree, ctx.backend, ctx.seconds, ctx.history)
+    return ctx, params
 
 
 class deterministic_torch:
