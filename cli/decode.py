@@ -81,7 +81,10 @@ def _decode_batch(files, output, delaunay: str, fmt: str, jobs: int | None, quie
     from tetweave_codec.runner.executors import LocalExecutor, default_jobs
     from tetweave_codec.runner.work import decode_file
 
-    fmt = mesh_format(f"decoded.{fmt}", for_writing=True)  # an unsupported format: one line, before any work
+    try:  # an unsupported format: one line, before any work
+        fmt = mesh_format(f"decoded.{fmt}", for_writing=True)
+    except InputError:
+        raise InputError(f"--format {fmt}: use obj, ply, stl, off or glb") from None
     workers = jobs or default_jobs(1)
     run_files(
         "tetweave decode",

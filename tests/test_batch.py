@@ -246,6 +246,14 @@ def test_output_path_is_checked_before_any_fit(tmp_path, monkeypatch):
         assert_usage_error(run("encode", tmp_path / "in", "-o", locked), "cannot write")
 
 
+def test_decode_batch_usage_errors(tmp_path):
+    (tmp_path / "in").mkdir()
+    (tmp_path / "in" / "a.tw").write_bytes(b"")
+    assert_usage_error(run("decode", tmp_path / "in", "-o", tmp_path / "out", "--format", "xyz"), "--format xyz")
+    assert_usage_error(run("decode", tmp_path / "in", tmp_path / "in" / "a.tw"), "need -o DIR")
+    assert not (tmp_path / "out").exists()
+
+
 def test_ray_missing_is_one_line(tmp_path, monkeypatch):
     monkeypatch.setitem(sys.modules, "ray", None)  # `import ray` raises ImportError
     make_inputs(tmp_path / "in", broken=False)

@@ -14,7 +14,7 @@ from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 
-from tetweave_codec.errors import InputError
+from tetweave_codec.errors import InputError, error_line
 from tetweave_codec.runner.work import Task
 
 Worker = Callable[[Task], dict]
@@ -228,6 +228,9 @@ class RayExecutor:
                     task = refs.pop(ref)
                     try:
                         result = ray.get(ref)
+                    except ray.exceptions.RayTaskError as exc:  # raised inside the worker: a bug, recorded
+                        cause = exc.cause if isinstance(exc.cause, BaseException) else exc
+                        result = {"status": "failed", "error": error_line(cause)}
                     except ray.exceptions.RayError as exc:  # the worker or its node died on both attempts
                         detail = " ".join(str(exc).split())[:200]
                         result = worker_died(MAX_ATTEMPTS, f"{type(exc).__name__}: {detail}")

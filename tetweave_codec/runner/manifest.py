@@ -4,8 +4,9 @@ A record (see `RECORD_FIELDS`): ``input`` (path), ``output`` (path relative to D
 input across runs), ``sha256`` of the input's bytes, ``options`` (everything that decides the output bytes),
 ``status`` (``ok`` / ``failed`` / ``skipped``), ``input_bytes``, ``bytes`` (output size), ``points`` (points
 stored), ``chamfer`` (decoded mesh to input, normalized frame; null when not measured), ``seconds`` (the file's
-wall time in its worker), ``error`` (the one-line message when failed), ``attempts`` (1, or 2 after a worker
-died), ``time`` (UTC, when recorded).
+wall time in its worker), ``error`` (the one-line message when failed), ``attempts`` (0: not run, i.e. skipped
+or unreadable; 1; 2 after a local worker died; Ray retries a dead worker itself and reports 1), ``time`` (UTC,
+when recorded).
 
 Only the driver writes the manifest, after the output file is in place: a record is appended, flushed and fsynced
 per file, so an interrupted run loses at most the files in flight. A torn last line (power loss) is ignored on
