@@ -79,7 +79,7 @@ def run_config(name: str, inputs: Path, out: Path, args: argparse.Namespace) -> 
     load = (load_before, os.getloadavg()[0])  # how busy the machine was: others' work slows every runner
     records = [json.loads(line) for line in (out / "manifest.jsonl").read_text().splitlines()]
     print(f"{name}: exit {done.returncode}, {wall:.1f}s\n{done.stdout.strip()}", file=sys.stderr)
-    command = "tetweave encode INPUTS -o OUT " + " ".join(cmd[8:])
+    command = "tetweave encode INPUTS -o OUT " + " ".join(cmd[7:])
     return {"name": name, "jobs": jobs, "threads": threads, "ray": ray, "wall": wall, "records": records,
             "command": command, "exit": done.returncode, "load": load}  # fmt: skip
 
