@@ -60,8 +60,9 @@ class LocalExecutor:
     """`jobs` worker processes on this machine (a spawn-context process pool: torch and fork do not mix).
 
     At most `jobs` tasks are submitted at once, so every submitted task is running: when a worker dies the pool
-    breaks and the tasks in flight are the suspects. Each suspect is run again later alone, in a pool of its
-    own, so a second death is its own; the others of the first pool finish there untouched.
+    breaks (and stops its other workers), and every task in flight is a suspect; the rest go on in a new pool.
+    Each suspect is run again after the others, alone in a pool of its own, so a second death is its own and an
+    innocent bystander of the first death simply finishes there.
     """
 
     def __init__(self, jobs: int) -> None:
@@ -116,7 +117,7 @@ class LocalExecutor:
                         died.append(task)
                         continue
                     except Exception as exc:  # e.g. a result that cannot be pickled: a bug, recorded
-                        result = {"status": "failed", "error": f"internal error ({type(exc).__name__}: {exc})"}
+                        result = {"status": "failed", "error": error_line(exc)}
                     yield task, result
             finished = True
         finally:
