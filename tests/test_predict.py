@@ -111,3 +111,16 @@ def test_a_sphere_costs_far_fewer_s_bits_with_prediction(degree):
     a, b = unpack_v2(pack_v2(plain)), unpack_v2(pack_v2(predicted))
     assert np.array_equal(a.s_sym, b.s_sym)
     assert b.sizes["s"] < 0.75 * a.sizes["s"]  # measured 0.67
+
+
+def test_corrupted_residuals_give_out_of_range_symbols_not_a_crash():
+    # a corrupted stream can hold residuals far outside the symbol range: reconstruct must stay finite and return
+    # symbols that the caller's range check rejects, and the points before the bad residual must be unaffected
+    rng = np.random.default_rng(3)
+    cells = canonical_cells(rng.integers(0, 64, (300, 3)))
+    s_sym = rng.integers(-40, 40, len(cells))
+    r = predict.residuals(cells, s_sym)
+    r[100] = 2**62
+    out = predict.reconstruct(cells, r)
+    assert np.array_equal(out[:100], s_sym[:100])
+    assert out[100] >= Q.S_SYMBOL_LIMIT
