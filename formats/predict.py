@@ -34,7 +34,17 @@ K_NEIGHBORS = 8
 # last W's (fewer than K: the first points of a region in Morton order, whose earlier points are all far). This
 # bounds the work per point, whatever the file.
 QUERY_WIDTHS = (24, 96, 512, 4096)
+# Equivalently (what the search below relies on): a point's neighbours are its K nearest earlier points among the
+# points strictly closer than its QUERY_WIDTHS[-1]-th nearest point (all points if fewer). Whenever some W yields
+# min(i, K) of them, they are the K nearest earlier points, which all lie below every wider bound too; when none
+# does, the last width decides. So any sequence of query sizes that ends with the last width finds the same
+# neighbours. These cost the least of those measured: on the 40 KB fandisk file (18K points), the share of points
+# whose min(i, K) nearest earlier points lie strictly within their q nearest points is 0.78 / 0.94 / 0.99 / 0.999
+# for q = 24 / 40 / 64 / 128, and the candidates queried per point fall from 50 (QUERY_WIDTHS) to 41.
+SEARCH_WIDTHS = (24, 40, 64, 128, 512)
 QUERY_ENTRIES = 1 << 22  # candidates per k-d tree query call (memory bound)
+_RESIDUAL_BOUND = 1 << 40  # |residual| bound in `reconstruct` (corrupted files only)
+_NO_KEY = np.iinfo(np.int64).max  # sort key of a candidate that is not an earlier point below the bound
 # Ridge on the plane's gradient, in squared cells per unit weight: keeps the fit defined with fewer than four or
 # coplanar neighbours. Measured (bits per point of the residuals, fandisk / stanford-bunny 40 KB files): 0.1 ->
 # 5.83 / 5.78; 1.0 -> 6.19 / 5.78; a ridge of 10 % of the neighbours' spread -> 6.94 / 6.06. Weights 1/d^2 beat
@@ -58,42 +68,45 @@ def causal_neighbors(cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     d2 = np.zeros((n, k), dtype=np.int64)
     if n < 2:
         return idx, d2
-    tree = cKDTree(cells.astype(np.float64))
+    points = cells.astype(np.float64)
+    # unbalanced, non-compact: builds 2x faster; which tree answers does not matter (see _select)
+    tree = cKDTree(points, balanced_tree=False, compact_nodes=False)
     todo = np.arange(n)
-    for width in QUERY_WIDTHS:
+    widths = [w for w in SEARCH_WIDTHS if w < QUERY_WIDTHS[-1]] + [QUERY_WIDTHS[-1]]
+    for width in widths:
         q = min(width, n)
-        last = width == QUERY_WIDTHS[-1] or q == n
-        left = []
-        for start in range(0, len(todo), max(1, QUERY_ENTRIES // q)):  # bounded memory per query
-            rows = todo[start : start + max(1, QUERY_ENTRIES // q)]
-            left.append(_select(tree, cells, rows, q, last, idx, d2))
+        last = width == widths[-1] or q == n
+        step = max(1, QUERY_ENTRIES // q)
+        left = [_select(tree, points, todo[a : a + step], q, last, idx, d2) for a in range(0, len(todo), step)]
         todo = np.concatenate(left) if left else todo[:0]
         if len(todo) == 0:
             break
     return idx, d2
 
 
-def _select(tree, cells, rows, q, last, idx, d2) -> np.ndarray:
+def _select(tree, points, rows, q, last, idx, d2) -> np.ndarray:
     """Fill idx/d2 for `rows` from their q nearest points; returns the rows left for a wider query."""
-    n, k = len(cells), idx.shape[1]
-    dist, cand = tree.query(cells[rows].astype(np.float64), k=q, workers=-1)
-    cand = cand.reshape(len(rows), q).astype(np.int64)
+    n, k = len(points), idx.shape[1]
+    dist, cand = tree.query(points[rows], k=q, workers=-1)
+    cand = cand.reshape(len(rows), q)
     # the squared distances are integers below 2**50: squaring the rounded root and rounding restores them exactly
-    cd2 = np.rint(dist.reshape(len(rows), q) ** 2).astype(np.int64)
+    cd2 = np.rint(np.square(dist.reshape(len(rows), q))).astype(np.int64)
     # Every point strictly closer than the q-th smallest distance D is among the candidates, whichever tied points
-    # the tree returned: the selection below D is exact.
-    bound = cd2.max(axis=1, keepdims=True)
-    valid = (cand < rows[:, None]) & ((cd2 < bound) | (q == n))
-    key = np.where(valid, cd2 * n + cand, np.iinfo(np.int64).max)
+    # the tree returned: the selection below D is exact. The tree sorts by distance, so D is the last column.
+    valid = cand < rows[:, None]
+    if q < n:
+        valid &= cd2 < cd2[:, -1:]
+    # One int64 key per candidate orders by (d2, index) -- d2 < 2**34 and n <= 2**22 keep it below 2**56 -- and
+    # sorting the keys themselves (no argsort and gathers) yields both outputs: index = key % n, d2 = key // n.
+    key = np.where(valid, cd2 * n + cand, _NO_KEY)
+    key.sort(axis=1)
     kk = min(k, q)
-    order = np.argsort(key, axis=1, kind="stable")[:, :kk]
-    sel_valid = np.take_along_axis(valid, order, axis=1)
-    done = (sel_valid.sum(axis=1) >= np.minimum(rows, k)) | last
-    sel = np.take_along_axis(cand, order, axis=1)[done]
-    sd2 = np.take_along_axis(cd2, order, axis=1)[done]
-    ok = sel_valid[done]
-    idx[rows[done], :kk] = np.where(ok, sel, -1)
-    d2[rows[done], :kk] = np.where(ok, sd2, 0)
+    sel = key[:, :kk]
+    ok = sel != _NO_KEY
+    done = (ok.sum(axis=1) >= np.minimum(rows, k)) | last
+    sel, ok = sel[done], ok[done]
+    idx[rows[done], :kk] = np.where(ok, sel % n, -1)
+    d2[rows[done], :kk] = np.where(ok, sel // n, 0)
     return rows[~done]
 
 
@@ -109,27 +122,20 @@ def predictor_weights(cells: np.ndarray, idx: np.ndarray, d2: np.ndarray) -> np.
     """
     cells = np.asarray(cells, dtype=np.int64)
     n, k = idx.shape
-    have = idx >= 0
-    safe = np.where(have, idx, 0)
-    d = (cells[safe] - cells[:, None, :]).astype(np.float64)  # exact: integers below 2**17
-    w = np.where(have, 1.0 / np.where(have, d2, 1).astype(np.float64), 0.0)
-    sw = np.zeros(n)
-    sd = np.zeros((n, 3))
-    for j in range(k):  # sums in neighbour order
-        sw = sw + w[:, j]
-        for a in range(3):
-            sd[:, a] = sd[:, a] + w[:, j] * d[:, j, a]
+    # slot-major (K, N) arrays, one contiguous row per slot: the sums below run over the slots in order
+    have = (idx >= 0).T
+    safe = np.where(have, idx.T, 0)
+    d = [(cells[safe, a] - cells[:, a]).astype(np.float64) for a in range(3)]  # exact: integers below 2**17
+    w = np.where(have, 1.0 / np.where(have, d2.T, 1).astype(np.float64), 0.0)
+    sw = _slot_sum(w)
     safe_sw = np.where(sw > 0, sw, 1.0)
-    m = sd / safe_sw[:, None]
-    e = d - m[:, None, :]
-    c = np.zeros((n, 3, 3))
-    for j in range(k):
-        for a in range(3):
-            for b in range(3):
-                c[:, a, b] = c[:, a, b] + w[:, j] * (e[:, j, a] * e[:, j, b])
+    m = [_slot_sum(w * d[a]) / safe_sw for a in range(3)]
+    e = [d[a] - m[a] for a in range(3)]
+    # C is symmetric and e_a * e_b == e_b * e_a exactly: the 6 distinct entries are all there is to compute
+    c = {(a, b): _slot_sum(w * (e[a] * e[b])) for a in range(3) for b in range(a, 3)}
     ridge = RIDGE_ABSOLUTE * sw
-    m00, m01, m02 = c[:, 0, 0] + ridge, c[:, 0, 1], c[:, 0, 2]
-    m11, m12, m22 = c[:, 1, 1] + ridge, c[:, 1, 2], c[:, 2, 2] + ridge
+    m00, m01, m02 = c[0, 0] + ridge, c[0, 1], c[0, 2]
+    m11, m12, m22 = c[1, 1] + ridge, c[1, 2], c[2, 2] + ridge
     # h = C^-1 m by the adjugate (C is symmetric positive definite when W > 0)
     a00 = m11 * m22 - m12 * m12
     a01 = m02 * m12 - m01 * m22
@@ -139,13 +145,21 @@ def predictor_weights(cells: np.ndarray, idx: np.ndarray, d2: np.ndarray) -> np.
     a22 = m00 * m11 - m01 * m01
     det = (m00 * a00 + m01 * a01) + m02 * a02
     safe_det = np.where(sw > 0, det, 1.0)
-    h0 = ((a00 * m[:, 0] + a01 * m[:, 1]) + a02 * m[:, 2]) / safe_det
-    h1 = ((a01 * m[:, 0] + a11 * m[:, 1]) + a12 * m[:, 2]) / safe_det
-    h2 = ((a02 * m[:, 0] + a12 * m[:, 1]) + a22 * m[:, 2]) / safe_det
+    h0 = ((a00 * m[0] + a01 * m[1]) + a02 * m[2]) / safe_det
+    h1 = ((a01 * m[0] + a11 * m[1]) + a12 * m[2]) / safe_det
+    h2 = ((a02 * m[0] + a12 * m[1]) + a22 * m[2]) / safe_det
     inv_w = 1.0 / safe_sw
-    he = (h0[:, None] * e[:, :, 0] + h1[:, None] * e[:, :, 1]) + h2[:, None] * e[:, :, 2]
-    beta = w * (inv_w[:, None] - he)
-    return np.where(have, beta, 0.0)
+    he = (h0 * e[0] + h1 * e[1]) + h2 * e[2]
+    beta = w * (inv_w - he)
+    return np.ascontiguousarray(np.where(have, beta, 0.0).T)
+
+
+def _slot_sum(x: np.ndarray) -> np.ndarray:
+    """(K, N) -> (N,): ((0 + x_0) + x_1) + ... one slot at a time (numpy's reductions may reorder the additions)."""
+    acc = np.zeros(x.shape[1])
+    for row in x:
+        acc = acc + row
+    return acc
 
 
 def _predicted_symbol(a: np.ndarray) -> np.ndarray:
@@ -175,18 +189,20 @@ def reconstruct(cells: np.ndarray, residual: np.ndarray) -> np.ndarray:
     residual = np.asarray(residual, dtype=np.int64)
     n = len(residual)
     idx, beta = _predictor(cells)
+    # A corrupted residual can leave the symbol range; bounding it here keeps every u finite (the caller rejects
+    # the symbols). Missing neighbours (idx -1, beta 0) read u[n] = 0.0, which adds +0.0: the sum is unchanged.
+    res_l = np.clip(residual, -_RESIDUAL_BOUND, _RESIDUAL_BOUND).tolist()
+    idx_l = np.where(idx >= 0, idx, n).tolist()
+    beta_l = beta.tolist()
     lo, hi = -float(S_SYMBOL_LIMIT), float(S_SYMBOL_LIMIT - 1)
-    idx_l, beta_l, res_l = idx.tolist(), beta.tolist(), residual.tolist()
-    u = [0.0] * n
-    out = [0] * n
-    for i in range(n):  # sequential: each prediction reads earlier points only
-        acc = 0.0
-        for b, j in zip(beta_l[i], idx_l[i], strict=True):
-            if j >= 0:
-                acc = acc + b * u[j]
-        kk = res_l[i] + math.floor(min(max(acc, lo), hi))
-        # a corrupted residual can leave the symbol range; clamp here so that u stays finite, the caller rejects
-        kk = min(max(kk, -(1 << 40)), 1 << 40)
-        out[i] = kk
-        u[i] = kk + 0.5
-    return np.array(out, dtype=np.int64)
+    floor = math.floor
+    u = [0.0] * (n + 1)
+    # Sequential: each prediction reads earlier points only. The sum is written out for K_NEIGHBORS = 8 (a constant
+    # of the format): Python evaluates it left to right, ((b0 u0 + b1 u1) + b2 u2) + ..., the reference order, and
+    # costs a third of a loop over the slots.
+    for i, (j0, j1, j2, j3, j4, j5, j6, j7), (b0, b1, b2, b3, b4, b5, b6, b7), r in zip(
+        range(n), idx_l, beta_l, res_l, strict=True
+    ):
+        a = b0 * u[j0] + b1 * u[j1] + b2 * u[j2] + b3 * u[j3] + b4 * u[j4] + b5 * u[j5] + b6 * u[j6] + b7 * u[j7]
+        u[i] = floor(lo if a < lo else hi if a > hi else a) + r + 0.5
+    return np.floor(np.array(u[:n])).astype(np.int64)  # u = k + 1/2 exactly (|k| < 2**41)

@@ -111,3 +111,37 @@ def test_a_sphere_costs_far_fewer_s_bits_with_prediction(degree):
     a, b = unpack_v2(pack_v2(plain)), unpack_v2(pack_v2(predicted))
     assert np.array_equal(a.s_sym, b.s_sym)
     assert b.sizes["s"] < 0.75 * a.sizes["s"]  # measured 0.67
+
+
+def test_corrupted_residuals_give_out_of_range_symbols_not_a_crash():
+    # a corrupted stream can hold residuals far outside the symbol range: reconstruct must stay finite and return
+    # symbols that the caller's range check rejects, and the points before the bad residual must be unaffected
+    rng = np.random.default_rng(3)
+    cells = canonical_cells(rng.integers(0, 64, (300, 3)))
+    s_sym = rng.integers(-40, 40, len(cells))
+    r = predict.residuals(cells, s_sym)
+    r[100] = 2**62
+    out = predict.reconstruct(cells, r)
+    assert np.array_equal(out[:100], s_sym[:100])
+    assert out[100] >= Q.S_SYMBOL_LIMIT
+
+
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    n=st.integers(0, 120),
+    spread=st.sampled_from([3, 6, 300]),
+    search=st.lists(st.integers(1, 15), max_size=4, unique=True),
+)
+@settings(max_examples=40, deadline=None)
+def test_any_search_widths_ending_with_the_last_give_the_rules_neighbours(seed, n, spread, search):
+    # the search's query sizes are a speed choice only: whatever they are, the neighbours are the rule's
+    rng = np.random.default_rng(seed)
+    cells = canonical_cells(rng.integers(0, spread, (n, 3)))
+    saved = predict.QUERY_WIDTHS, predict.SEARCH_WIDTHS
+    try:
+        predict.QUERY_WIDTHS, predict.SEARCH_WIDTHS = (4, 8, 16), tuple(sorted(search))
+        idx, d2 = predict.causal_neighbors(cells)
+    finally:
+        predict.QUERY_WIDTHS, predict.SEARCH_WIDTHS = saved
+    ref_idx, ref_d2 = brute_force_neighbors(cells, predict.K_NEIGHBORS, (4, 8, 16))
+    assert np.array_equal(idx, ref_idx) and np.array_equal(d2, ref_d2)
