@@ -127,6 +127,8 @@ def test_max_error_search_on_a_model_of_the_error(monkeypatch, k, floor):
 
 
 def test_max_error_search_refuses_what_no_allowed_fit_reaches(monkeypatch):
-    monkeypatch.setattr(rate_control, "_fit_and_measure", lambda job, n, q, d: rate_control.Trial(None, None, b"", 5e-3, None))
+    monkeypatch.setattr(
+        rate_control, "_fit_and_measure", lambda job, n, q, d: rate_control.Trial(None, None, b"", 5e-3, None)
+    )
     with pytest.raises(InputError, match="could not reach|out of reach"):
         rate_control.encode_to_error(None, 1e-3)
