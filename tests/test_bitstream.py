@@ -316,6 +316,8 @@ def test_context_coded_octree_round_trips_and_codes_middle_levels_bitwise():
     assert len(models) == octree.model_size(models + words, 9, len(cells), contexts=True)
     assert len(models) + len(words) < sum(map(len, plain))
     assert octree.contexts_pay(f.cells, 9)
+    scattered, _ = Q.merge_collisions(np.random.default_rng(1).integers(0, 2**12, (200, 3)))
+    assert not octree.contexts_pay(scattered, 12)  # no neighbours anywhere: the encoder keeps the plain coding
     assert np.array_equal(octree.decode(models, words, 9, len(cells), contexts=True), cells)
     for n in (len(cells) - 1, len(cells) + 1):
         with pytest.raises(ContainerError, match="octree"):
