@@ -84,22 +84,24 @@ def face_neighbours(keys: np.ndarray, level: int) -> np.ndarray:
     """
     keys = np.asarray(keys, dtype=np.int64)
     n = len(keys)
-    steps = []
-    for shift in (2, 1, 0):  # x, y, z: the key bits 3j + shift hold the axis' coordinate
-        axis = np.int64(sum(1 << (3 * j + shift) for j in range(level)))
-        coord, rest = keys & axis, keys & ~axis
-        # +-1 on one axis of a Morton code: carry or borrow through that axis' bits only
-        steps.append((((coord - 1) & axis) | rest, coord == 0))  # -1; no neighbour at coordinate 0
-        steps.append((((keys | ~axis) + 1) & axis | rest, coord == axis))  # +1; none at 2**level - 1
-    query = np.concatenate([k for k, _ in steps])
+    out = np.zeros((n, 6), dtype=bool)
+    table = None
     if level <= DENSE_LEVEL_MAX:  # a lookup table over all 8**level keys is faster than a sorted search
         table = np.zeros(1 << (3 * level), dtype=bool)
         table[keys] = True
-        found = table[query & ((1 << (3 * level)) - 1)]  # wrapped keys are edges, masked below
-    else:
-        pos = np.minimum(np.searchsorted(keys, query), n - 1)
-        found = keys[pos] == query
-    return found.reshape(len(steps), n).T & ~np.stack([edge for _, edge in steps], axis=1)
+    for axis, shift in enumerate((2, 1, 0)):  # x, y, z: the key bits 3j + shift hold the axis' coordinate
+        bits = np.int64(sum(1 << (3 * j + shift) for j in range(level)))
+        coord, rest = keys & bits, keys & ~bits
+        # +-1 on one axis of a Morton code: borrow or carry through that axis' bits only; none at the grid's faces
+        for side, (query, edge) in enumerate(
+            ((((coord - 1) & bits) | rest, coord == 0), ((((keys | ~bits) + 1) & bits) | rest, coord == bits))
+        ):
+            if table is not None:
+                found = table[query & ((1 << (3 * level)) - 1)]  # wrapped keys are at an edge, masked below
+            else:
+                found = keys[np.minimum(np.searchsorted(keys, query), n - 1)] == query
+            out[:, 2 * axis + side] = found & ~edge
+    return out
 
 
 def side_contexts(neighbours: np.ndarray) -> np.ndarray:
