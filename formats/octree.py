@@ -17,9 +17,9 @@ With header flag bit 2 (`FLAG_OCTREE_CONTEXTS`, formats/README.md "Positions sec
 is coded either as above or bit by bit with neighbour contexts, as in MPEG G-PCC's geometry coder: the 8 child
 bits of a node in child order, bit i with the binary model of context ``3 * a + min(o, 2)``, where a (0..3) counts
 the occupied face neighbours of the node (same level) on the side of child i and o the occupied children before
-i. The encoder picks the cheaper coding per level (levels 2-5 of a fitted file gain 10-30 %; the deepest levels,
-single-child nodes in empty neighbourhoods, stay with population count + rank). Every pass of one child bit over a
-level is one batch, so the decoder's work is a few numpy operations per level.
+i. The encoder picks the cheaper coding per level (levels 2 to b - 3 of a fitted file, 8-30 % fewer bits each; the
+deepest levels, single-child nodes in empty neighbourhoods, stay with population count + rank). Every pass of
+one child bit over a level is one batch, so the decoder's work is a few numpy operations per level.
 """
 
 from __future__ import annotations
@@ -39,15 +39,16 @@ PATTERNS = [np.array([c for c in range(256) if POPCOUNT[c] == k], dtype=np.int64
 RANK = np.zeros(256, dtype=np.int64)
 for _k in range(9):
     RANK[PATTERNS[_k]] = np.arange(len(PATTERNS[_k]))
+RANK_BITS = np.log2([comb(8, k) for k in range(9)])  # code length of a rank (uniform) per population count
 MODEL_BYTES_PER_LEVEL = 8
 # Context-coded octree (flag bit 2): a uint16 mask of the levels coded bit by bit, then per level its models
 LEVEL_MASK_BYTES = 2
 NEIGHBOUR_CLASSES = 4  # occupied face neighbours on the side of a child: 0..3
 CHILD_CLASSES = 3  # occupied children coded before it: 0, 1, 2 or more
 CONTEXTS = NEIGHBOUR_CLASSES * CHILD_CLASSES  # binary model bytes of a bit-coded level
+DENSE_LEVEL_MAX = 7  # face_neighbours uses a table of 8**level flags (2 MiB at level 7) up to this level
 # face neighbours in the order -x, +x, -y, +y, -z, +z; child i = (bx << 2) | (by << 1) | bz touches the
 # neighbour 2 * axis + bit on each axis (axis 0, 1, 2 = x, y, z)
-DENSE_LEVEL_MAX = 7  # face_neighbours uses a table of 8**level flags (2 MiB at level 7) up to this level
 CHILD_SIDES = np.array([[(i >> 2) & 1, 2 + ((i >> 1) & 1), 4 + (i & 1)] for i in range(8)], dtype=np.int64)
 _UNIFORM = {}
 
@@ -128,7 +129,7 @@ def _level_models(occ: np.ndarray, neighbours: np.ndarray | None):
     pop = POPCOUNT[occ]
     hist = entropy.fit_histogram(pop - 1, 8)
     cost = entropy.model_bits(pop - 1, entropy.histogram_weights(hist)) + 8 * MODEL_BYTES_PER_LEVEL
-    cost += sum(float(np.log2(comb(8, int(k)))) for k in pop[pop < 8])
+    cost += float(RANK_BITS[pop].sum())
     if neighbours is None:
         return False, hist.tobytes(), cost
     passes = _bit_passes(occ, neighbours)
