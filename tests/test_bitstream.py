@@ -326,6 +326,18 @@ def test_context_coded_octree_round_trips_and_codes_middle_levels_bitwise():
     assert_same(f, g) and g.flags & FLAG_OCTREE_CONTEXTS
 
 
+@given(st.integers(6, 12), st.integers(1, 400), st.integers(1, 40), st.integers(0, 2**32 - 1))
+@settings(max_examples=40, deadline=None)
+def test_context_coded_octree_round_trips_dense_and_sparse_sets(bits, n, spread, seed):
+    """Blobs of every density (spread = cells around a few centres): whatever levels are bit-coded, exact cells."""
+    rng = np.random.default_rng(seed)
+    centre = rng.integers(0, 2**bits, (int(rng.integers(1, 5)), 3))
+    cells = centre[rng.integers(0, len(centre), n)] + rng.integers(-spread, spread + 1, (n, 3))
+    cells, _ = Q.merge_collisions(np.clip(cells, 0, 2**bits - 1))
+    models, words = octree.encode(cells, bits, contexts=True)
+    assert np.array_equal(octree.decode(models, words, bits, len(cells), contexts=True), cells)
+
+
 def test_context_coded_octree_models_are_validated():
     f = shell_file()
     cells = f.cells[Q.canonical_order(f.cells)]
