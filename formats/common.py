@@ -8,8 +8,9 @@ MAGIC = b"\x89TWV\r\n\x1a\n"  # bytes 0-7 of every version; the uint16 version f
 CHECKSUM_SIZE = 4  # CRC-32 (zlib) of every byte before it, the file's last 4 bytes
 FLAG_QHULL = 1 << 0  # the encoder's Delaunay backend was Qhull (else TetGen)
 FLAG_S_PREDICTED = 1 << 1  # version 2: the s stream holds residuals of the neighbour prediction (formats/predict.py)
+FLAG_OCTREE_CONTEXTS = 1 << 2  # version 2: octree levels may be coded bit by bit with neighbour contexts (octree.py)
 KNOWN_FLAGS = FLAG_QHULL  # version 1
-KNOWN_FLAGS_V2 = FLAG_QHULL | FLAG_S_PREDICTED
+KNOWN_FLAGS_V2 = FLAG_QHULL | FLAG_S_PREDICTED | FLAG_OCTREE_CONTEXTS
 
 
 def backend_flags(backend: str) -> int:

@@ -7,7 +7,8 @@ offset  size       type     field
 ======  =========  =======  ==========================================================================
 0       8          bytes    magic ``89 54 57 56 0D 0A 1A 0A`` (as version 1)
 8       2          uint16   version = 2
-10      1          uint8    flags; bit 0: Delaunay backend (0 = TetGen, 1 = Qhull); bit 1: s predicted; others 0
+10      1          uint8    flags; bit 0: Delaunay backend (0 = TetGen, 1 = Qhull); bit 1: s predicted;
+                            bit 2: octree context-coded; others 0
 11      1          int8     SH degree d in -1..3
 12      1          uint8    position bits b in 6..16
 13      4          uint32   N, number of points (<= MAX_POINTS)
@@ -35,7 +36,7 @@ import numpy as np
 from tetweave_codec.errors import ContainerError
 from tetweave_codec.geometry.sh import SH_DEGREE_MAX, SH_DEGREE_NONE, num_coeffs
 
-from . import attributes, octree
+from . import attributes, common, octree
 from . import quantize as Q
 from .common import CHECKSUM_SIZE, FLAG_S_PREDICTED, KNOWN_FLAGS_V2, MAGIC, backend_name, checked_fields
 
@@ -62,7 +63,7 @@ class TetWeaveFileV2:
     c_sym: (N, q) int64 c symbols (`quantize.quantize_c`), q = num_coeffs(sh_degree).
     position_bits: b in 6..16. s_step: float (stored as float32). c_band_steps: d + 1 floats (float32).
     sh_degree: -1..3. scale, offset: ``original = normalized * scale + offset``. flags: bit 0 = Qhull, bit 1 = s
-    coded as prediction residuals (what the encoder writes).
+    coded as prediction residuals, bit 2 = octree levels context-coded (what the encoder writes).
     sizes: byte size of each part of the file it was read from ("header", "positions", "s", "c",
     "checksum"), or None for a file built in memory.
 
@@ -182,7 +183,7 @@ def pack_v2(f: TetWeaveFileV2) -> bytes:
     if len(band_steps) != degree + 1:
         raise ValueError(f"need {degree + 1} c band steps for SH degree {degree}, got {len(band_steps)}")
     scale, offset, flags = checked_fields(f.scale, f.offset, f.flags, KNOWN_FLAGS_V2)
-    models, words = octree.encode(cells, bits)
+    models, words = octree.encode(cells, bits, contexts=bool(flags & common.FLAG_OCTREE_CONTEXTS))
     if flags & FLAG_S_PREDICTED:
         s_section = attributes.encode_s_predicted(s_sym, cells)
     else:
@@ -243,10 +244,9 @@ def unpack_v2(buf: bytes) -> TetWeaveFileV2:
         raise ContainerError("invalid .tw header: a c section without SH coefficients")
     starts = np.cumsum((hsize, *section_sizes))
     sec = [buf[int(starts[i]) : int(starts[i + 1])] for i in range(3)]
-    model_bytes = bits * octree.MODEL_BYTES_PER_LEVEL if n else 0
-    if len(sec[0]) < model_bytes:
-        raise ContainerError("invalid .tw payload: the positions section is shorter than its models")
-    cells = octree.decode(sec[0][:model_bytes], sec[0][model_bytes:], int(bits), int(n))
+    contexts = bool(flags & common.FLAG_OCTREE_CONTEXTS)
+    model_bytes = octree.model_size(sec[0], int(bits), int(n), contexts)
+    cells = octree.decode(sec[0][:model_bytes], sec[0][model_bytes:], int(bits), int(n), contexts)
     if flags & FLAG_S_PREDICTED:
         s_sym = attributes.decode_s_predicted(sec[1], cells)
     else:
