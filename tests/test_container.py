@@ -113,7 +113,7 @@ def test_pack_is_deterministic_and_casts_other_floats():
         (dict(points=np.zeros((20, 2), np.float16)), "points"),
         (dict(s=np.zeros(19, np.float16)), "s must be"),
         (dict(c=np.zeros((20, 4), np.float16)), "c must be"),
-        (dict(sh_degree=4), "sh_degree"),
+        (dict(sh_degree=4), "SH degree"),
         (dict(scale=0.0), "scale"),
         (dict(scale=float("nan")), "scale"),
         (dict(offset=np.array([0, np.inf, 0])), "offset"),
