@@ -21,6 +21,8 @@ FLAG_QHULL = 1 << 0  # the encoder's Delaunay backend was Qhull (else TetGen)
 FLAG_S_PREDICTED = 1 << 1  # version 2: the s stream holds residuals of the neighbour prediction (formats/predict.py)
 KNOWN_FLAGS = FLAG_QHULL  # version 1
 KNOWN_FLAGS_V2 = FLAG_QHULL | FLAG_S_PREDICTED
+# Largest normalized coordinate of version 1 (any finite float16); version 2's is the grid's, quantize.GRID_BOUND.
+COORDINATE_BOUND_V1 = float(np.finfo(np.float16).max)
 
 
 def backend_flags(backend: str) -> int:
@@ -37,20 +39,29 @@ def backend_name(flags: int) -> str:
     return "qhull" if flags & FLAG_QHULL else "tetgen"
 
 
-def _transform_problem(scale: float, offset: np.ndarray) -> str | None:
-    """Why scale / offset cannot be stored (None if they can): scale finite and > 0, offset 3 finite numbers."""
+def _transform_problem(scale: float, offset: np.ndarray, bound: float) -> str | None:
+    """Why scale / offset cannot be stored (None if they can): scale finite and > 0, offset 3 finite numbers, and
+    ``bound * scale + |offset_i|`` finite in float64, so that every decoded vertex is finite in the input's frame."""
     if not (np.isfinite(scale) and scale > 0):
         return f"scale {scale} (must be finite and > 0)"
     if offset.shape != (3,) or not np.isfinite(offset).all():
         return "offset must be 3 finite numbers"
+    with np.errstate(over="ignore"):
+        reach = bound * scale + np.abs(offset)
+    if not np.isfinite(reach).all():
+        return f"scale {scale:g} and offset take the points beyond the float64 range"
     return None
 
 
-def checked_fields(scale, offset, flags, known: int = KNOWN_FLAGS) -> tuple[float, np.ndarray, int]:
-    """scale (float > 0), offset (3,) float64 and flags as a writer stores them; ValueError when invalid."""
+def checked_fields(
+    scale, offset, flags, known: int = KNOWN_FLAGS, bound: float = COORDINATE_BOUND_V1
+) -> tuple[float, np.ndarray, int]:
+    """scale (float > 0), offset (3,) float64 and flags as a writer stores them; ValueError when invalid.
+
+    bound: the version's largest normalized coordinate (`COORDINATE_BOUND_V1`, `quantize.GRID_BOUND`)."""
     scale = float(scale)
     offset = np.asarray(offset, dtype=np.float64).reshape(-1)
-    problem = _transform_problem(scale, offset)
+    problem = _transform_problem(scale, offset, bound)
     if problem:
         raise ValueError(problem)
     flags = int(flags)
@@ -59,11 +70,13 @@ def checked_fields(scale, offset, flags, known: int = KNOWN_FLAGS) -> tuple[floa
     return scale, offset, flags
 
 
-def read_transform(scale: float, offset_xyz) -> tuple[float, np.ndarray]:
-    """A reader's scale and (3,) float64 offset from the header's doubles; ContainerError when invalid."""
+def read_transform(scale: float, offset_xyz, bound: float) -> tuple[float, np.ndarray]:
+    """A reader's scale and (3,) float64 offset from the header's doubles; ContainerError when invalid.
+
+    bound: the version's largest normalized coordinate (`COORDINATE_BOUND_V1`, `quantize.GRID_BOUND`)."""
     scale = float(scale)
     offset = np.array(offset_xyz, dtype=np.float64)
-    problem = _transform_problem(scale, offset)
+    problem = _transform_problem(scale, offset, bound)
     if problem:
         raise ContainerError(f"invalid .tw header: {problem}")
     return scale, offset

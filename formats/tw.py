@@ -41,6 +41,7 @@ from tetweave_codec.geometry.sh import check_degree, num_coeffs
 
 from .common import (  # noqa: F401 -- re-exported for readers of version 1
     CHECKSUM_SIZE,
+    COORDINATE_BOUND_V1,
     FLAG_QHULL,
     KNOWN_FLAGS,
     MAGIC,
@@ -176,7 +177,7 @@ def unpack(data: bytes | bytearray | memoryview) -> TetWeaveFile | TetWeaveFileV
         raise ContainerError(f"unsupported .tw payload codec {codec} (this tetweave reads {CODEC_RAW} = raw)")
     if reserved != 0:
         raise ContainerError("invalid .tw header: reserved field is not zero")
-    scale, offset = read_transform(scale, (ox, oy, oz))
+    scale, offset = read_transform(scale, (ox, oy, oz), COORDINATE_BOUND_V1)
     if psize != payload_size(n, degree):
         raise ContainerError(
             f"invalid .tw header: payload of {psize} bytes, {n} points at SH degree {degree} need "

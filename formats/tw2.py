@@ -191,7 +191,7 @@ def pack_v2(f: TetWeaveFileV2) -> bytes:
     band_steps = [Q.stored_step(x) for x in np.asarray(f.c_band_steps, dtype=np.float64).reshape(-1)]
     if len(band_steps) != degree + 1:
         raise ValueError(f"need {degree + 1} c band steps for SH degree {degree}, got {len(band_steps)}")
-    scale, offset, flags = checked_fields(f.scale, f.offset, f.flags, KNOWN_FLAGS_V2)
+    scale, offset, flags = checked_fields(f.scale, f.offset, f.flags, KNOWN_FLAGS_V2, Q.GRID_BOUND)
     models, words = octree.encode(cells, bits)
     if flags & FLAG_S_PREDICTED:
         s_section = attributes.encode_s_predicted(s_sym, cells)
@@ -225,7 +225,7 @@ def unpack_v2(buf: bytes) -> TetWeaveFileV2:
         )
     if n > MAX_POINTS:
         raise ContainerError(f"invalid .tw header: {n} points (a version-2 file holds at most {MAX_POINTS})")
-    scale, offset = read_transform(scale, (ox, oy, oz))
+    scale, offset = read_transform(scale, (ox, oy, oz), Q.GRID_BOUND)
     for name, st in (("s step", s_step), *(("c step", x) for x in band_steps)):
         if not (np.isfinite(st) and st >= Q.MIN_STEP):
             raise ContainerError(f"invalid .tw header: {name} {st} (must be a finite, normal float32 > 0)")
