@@ -377,6 +377,7 @@ def test_n_above_the_format_limit_is_rejected_before_decoding():
         (12, "<B", 17, "position bits"),
         (17, "<d", 0.0, "scale"),
         (17, "<d", float("inf"), "scale"),
+        (17, "<d", 1.7e308, "float64 range"),  # 1.2 x 1.7e308 overflows: decoded vertices would be infinite
         (25, "<d", float("nan"), "offset"),
         (49, "<f", 0.0, "s step"),
         (49, "<f", float("nan"), "s step"),
