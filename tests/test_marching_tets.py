@@ -464,3 +464,24 @@ def test_non_conforming_tetrahedralization_raises(broken):
     s[[4, 6]] = -1.0  # (1,0,0) and (1,1,0): the surface crosses the shared square's diagonals
     with pytest.raises(TopologyError):
         marching_tets_numpy(pts, tets, s, None, _hull_faces_of(pts, tets))
+
+
+def test_check_manifold_accepts_closed_meshes_and_names_each_defect():
+    from tetweave_codec.errors import TopologyError
+    from tetweave_codec.geometry.marching_tets import check_manifold
+
+    tetra = np.array([[0, 2, 1], [0, 1, 3], [1, 2, 3], [0, 3, 2]], dtype=np.int64)  # closed, oriented
+    check_manifold(tetra, 4)
+    check_manifold(tetra[1:], 4, closed=False)  # open but edge-manifold: fine without the closed requirement
+    check_manifold(np.zeros((0, 3), np.int64), 0)
+    broken = {
+        "twin": tetra[1:],  # a hole
+        "twice": np.concatenate([tetra, tetra[:1]]),  # a face twice: its directed edges are used twice
+        "degenerate": np.concatenate([tetra, [[0, 0, 1]]]),
+    }
+    flipped = tetra.copy()
+    flipped[0] = flipped[0, [0, 2, 1]]  # inconsistent orientation: edges used twice in one direction
+    broken["flipped"] = flipped
+    for what, faces in broken.items():
+        with pytest.raises(TopologyError, match="twin" if what == "twin" else "twice|degenerate"):
+            check_manifold(faces, 4)
