@@ -178,6 +178,9 @@ def _m_field(rng, parts, others):
         return "field:none"
     (old,) = struct.unpack_from(fmt, parts.header, offset)
     value = _field_value(rng, fmt, old)
+    if fmt == "<f":
+        with np.errstate(over="ignore"):
+            value = float(np.float32(value))  # beyond float32: inf, as a writer rounding it would store
     struct.pack_into(fmt, parts.header, offset, value)
     return f"field:{name}={value!r}"
 
