@@ -170,12 +170,19 @@ def _field_value(rng: np.random.Generator, fmt: str, old):
     return choices[int(rng.integers(len(choices)))]
 
 
+def _header_fields(header: bytearray) -> dict[str, tuple[int, str]]:
+    """The seed header's fields: name -> (offset, struct format), the c steps of its SH bands included."""
+    bands = (len(header) - FIXED_SIZE - 12) // 4
+    return {**FIELDS, **{f"c_step_{band}": (FIXED_SIZE + 4 * band, "<f") for band in range(bands)}}
+
+
+# Mutations: (rng, parts, seed files' bytes) -> a short description; each edits `parts` in place.
+
+
 def _m_field(rng, parts, others):
-    names = list(FIELDS) + [f"c_step_{band}" for band in range((len(parts.header) - FIXED_SIZE - 12) // 4)]
-    name = names[int(rng.integers(len(names)))]
-    offset, fmt = FIELDS.get(name, (FIXED_SIZE + 4 * (int(name[-1]) if name.startswith("c_step") else 0), "<f"))
-    if offset + struct.calcsize(fmt) > len(parts.header):
-        return "field:none"
+    fields = _header_fields(parts.header)
+    name = list(fields)[int(rng.integers(len(fields)))]
+    offset, fmt = fields[name]
     (old,) = struct.unpack_from(fmt, parts.header, offset)
     value = _field_value(rng, fmt, old)
     if fmt == "<f":

@@ -3,6 +3,8 @@ Delaunay backends. Every case must end in a ContainerError or a closed 2-manifol
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 import pytest
 
@@ -88,23 +90,21 @@ def test_full_campaign_10000_cases():
 # real files: the shared meshes encoded at 5 and 20 KB, decoded with both backends
 
 
-@pytest.fixture(scope="module")
-def real_files(shared_meshes):
+@functools.cache
+def _encoded(path: str, size: int) -> bytes:
+    """A rate-controlled encode of a shared mesh, once per test session (both backend tests decode it)."""
     from tetweave_codec import encode
     from tetweave_codec.meshio import load_mesh
 
-    files = {}
-    for name in ("spot", "fandisk"):
-        vertices, faces = load_mesh(shared_meshes / f"{name}.ply")
-        for size in (5 * 1024, 20 * 1024):
-            files[name, size] = encode(vertices, faces, size=size, quality="fast", measure=False).data
-    return files
+    vertices, faces = load_mesh(path)
+    return encode(vertices, faces, size=size, quality="fast", measure=False).data
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("backend", available_backends())
-def test_real_files_decode_to_closed_manifolds_with_both_backends(real_files, backend):
-    for (name, size), data in real_files.items():
+def test_real_files_decode_to_closed_manifolds_with_both_backends(shared_meshes, backend):
+    for name, size in [(name, size) for name in ("spot", "fandisk") for size in (5 * 1024, 20 * 1024)]:
+        data = _encoded(str(shared_meshes / f"{name}.ply"), size)
         result = decode_detailed(data, backend)
         assert result.backend == backend
         assert len(result.faces) > 1000, (name, size)
