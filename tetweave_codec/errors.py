@@ -11,3 +11,8 @@ class InputError(TetweaveError):
 
 class ContainerError(TetweaveError):
     """A `.tw` container is malformed, truncated, corrupted or of an unsupported version."""
+
+
+class TopologyError(TetweaveError):
+    """An internal consistency check failed: a tetrahedralization that is not a proper one (overlapping or
+    non-conforming tets) reached marching tets, which would otherwise return a non-manifold mesh."""
