@@ -2,10 +2,10 @@
 
 Seed files are valid version-2 files: analytic point sets written with `quantize_file` + `pack_v2` (lattice
 cells in a shell around a torus or a sphere, 6-12 position bits, SH degrees -1..3, both Delaunay flags, s
-predicted or not, octree context-coded (flags bit 2) or not; plus the edge cases N = 0 and N = 1..5) and any real files given with ``--files``. Each case
-applies 1-3 mutations that know the layout (header fields, the three section sizes, the sections' bytes) and
-then, in 95 % of cases, rewrites the section sizes and recomputes the CRC so that the mutation reaches the
-parsers behind the checksum:
+predicted or not, octree context-coded (flags bit 2) or not; plus the edge cases N = 0 and N = 1..5) and any
+real files given with ``--files``. Each case applies 1-3 mutations that know the layout (header fields, the
+three section sizes, the sections' bytes) and then, in 95 % of cases, rewrites the section sizes and recomputes
+the CRC so that the mutation reaches the parsers behind the checksum:
 
 * ``field``: one header field (flags, SH degree, position bits, N, scale, offset, s step, a c step) set to an
   extreme or boundary value of its type (0, 1, max, max + 1, NaN, inf, subnormal, the value +-1, ...) or to
