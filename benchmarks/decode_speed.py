@@ -1,18 +1,23 @@
-"""Speed of decoding a `.tw` file: Delaunay tetrahedralization and directional marching tets per point count.
+"""Speed of decoding real `.tw` version-2 files: each stage against the Delaunay tetrahedralization it feeds.
 
-Input: points in a thin shell around a torus (R = 0.55, r = 0.25, normalized frame), the kind of point cloud
-the encoder writes (only points near the surface are kept): shell half-thickness = mean point spacing,
-sqrt(2 * area / N). s is the torus's signed distance, c random SH coefficients of degree 1 (as in the paper's
-runtime table), everything rounded to float16 and packed into a real container, so the timings cover the full
-`decode_detailed` path (unpack, Delaunay, marching tets; the input-frame transform is included in "total").
+Input: rate-controlled files of the shared meshes (../shared/meshes) at 5-40 KB. Fitting them takes minutes each,
+so they are cached outside git: `--files DIR` (default: $TETWEAVE_DECODE_FILES or ~/.cache/tetweave/decode_speed)
+holds MESH_SIZE.tw; a missing one is encoded first with
+`tetweave encode MESH --size SIZE --quality fast --threads 1 -q` (the decoder's work depends on the points and the
+bytes, not on how long the fit ran). `--no-encode` times only the files already there.
 
-Each size is decoded `--repeats` times (after one warm-up run) with the default backend (TetGen) and with the
-baseline backend (Qhull), in the same run; the table reports medians and the baseline / default ratio, so that
-tables from noisy machines stay comparable.
+Per file, median of `--repeats` runs after one warm-up, with the clock of `--clock`:
 
-    python -m tetweave_codec.benchmarks.decode_speed
-    python -m tetweave_codec.benchmarks.decode_speed --sizes 8k,64k --repeats 5 --threads 1 --baseline none
-    python -m tetweave_codec.benchmarks.decode_speed --clock cpu     # CPU time: steadier on a busy machine
+* the API stages of `decode_detailed`: unpack (range decoding, the octree and the s prediction), Delaunay,
+  marching tets, and their total (input-frame transform included);
+* "s pred": the part of unpack spent in the s prediction (`predict.reconstruct`: neighbour search, weights and
+  the sequential pass), timed on its own;
+* "CLI": `tetweave decode FILE -o OUT.ply` as a fresh process, from process start to the file written (wall
+  clock, whatever `--clock` says), so interpreter start-up and imports count;
+* ratios of unpack, total and CLI to the Delaunay time of the same file.
+
+    python -m tetweave_codec.benchmarks.decode_speed --threads 1
+    python -m tetweave_codec.benchmarks.decode_speed --sizes 40k --meshes fandisk,spot --repeats 9 --no-encode
 """
 
 from __future__ import annotations
@@ -20,121 +25,136 @@ from __future__ import annotations
 import argparse
 import os
 import statistics
+import subprocess
 import sys
+import tempfile
 import time
+from pathlib import Path
 
-TORUS_R, TORUS_r = 0.55, 0.25
-DEFAULT_SIZES = "8k,16k,32k,64k,128k"
+DEFAULT_SIZES = "5k,10k,20k,40k"
+DEFAULT_MESH_DIR = Path(__file__).resolve().parent.parent.parent / "shared" / "meshes"
+CACHE_ENV = "TETWEAVE_DECODE_FILES"
 
 
-def parse_sizes(text: str) -> list[int]:
-    """'8k,64k,1000' -> [8192, 65536, 1000] (k = 1024)."""
-    sizes = []
+def default_cache() -> Path:
+    return Path(os.environ.get(CACHE_ENV) or Path.home() / ".cache" / "tetweave" / "decode_speed")
+
+
+def parse_sizes(text: str) -> list[tuple[str, int]]:
+    """'5k,40k,1000' -> [('5k', 5120), ('40k', 40960), ('1000', 1000)] (k = 1024)."""
+    out = []
     for item in text.split(","):
         item = item.strip().lower()
+        if not item:
+            continue
         mult = 1024 if item.endswith("k") else 1
         value = int(float(item[:-1] if item.endswith("k") else item) * mult)
-        if value < 4:
-            raise argparse.ArgumentTypeError(f"size {item!r} is below 4 points")
-        sizes.append(value)
-    return sizes
+        if value < 100:
+            raise argparse.ArgumentTypeError(f"size {item!r} is below 100 bytes")
+        out.append((item, value))
+    return out
 
 
-def torus_sdf(p):
-    import numpy as np
-
-    q = np.stack([np.hypot(p[:, 0], p[:, 2]) - TORUS_R, p[:, 1]], 1)
-    return np.hypot(q[:, 0], q[:, 1]) - TORUS_r
-
-
-def shell_points(n: int, seed: int = 0):
-    """n points uniform in {|sdf| < h} around the torus, h = mean spacing; float16-representable."""
-    import numpy as np
-
-    rng = np.random.default_rng(seed)
-    area = 4 * np.pi**2 * TORUS_R * TORUS_r
-    half = np.sqrt(2 * area / n)
-    lo = np.array([-(TORUS_R + TORUS_r + half), -(TORUS_r + half), -(TORUS_R + TORUS_r + half)])
-    chunks, have = [], 0
-    while have < n:
-        p = rng.uniform(lo, -lo, (4 * n, 3))
-        p = p[np.abs(torus_sdf(p)) < half]
-        chunks.append(p)
-        have += len(p)
-    return np.concatenate(chunks)[:n].astype(np.float16)
+def ensure_file(mesh: Path, size: str, cache: Path, encode: bool) -> Path | None:
+    """cache/MESH_SIZE.tw, encoded from `mesh` when missing and `encode` is set (None when missing)."""
+    path = cache / f"{mesh.stem}_{size}.tw"
+    if path.exists() or not encode:
+        return path if path.exists() else None
+    cache.mkdir(parents=True, exist_ok=True)
+    print(f"# encoding {path} (--size {size} --quality fast --threads 1) ...", file=sys.stderr, flush=True)
+    cmd = [sys.executable, "-m", "tetweave_codec.cli.main", "encode", str(mesh), "-o", str(path)]
+    subprocess.run(cmd + ["--size", size, "--quality", "fast", "--threads", "1", "-q"], check=True)
+    return path
 
 
-def make_container(n: int, seed: int = 0) -> bytes:
-    import numpy as np
-
-    from tetweave_codec.formats.tw import TetWeaveFile, pack
-
-    pts = shell_points(n, seed)
-    s = torus_sdf(pts.astype(np.float64)).astype(np.float16)
-    c = (np.random.default_rng(seed + 1).normal(size=(n, 4)) * 0.1).astype(np.float16)
-    return pack(TetWeaveFile(pts, s, c, 1, 1.0, np.zeros(3)))
-
-
-def time_decode(data: bytes, backend: str, repeats: int, clock: str = "wall") -> dict:
-    """Median seconds per stage ("delaunay", "marching_tets", "total", ...) over `repeats` decodes.
-
-    clock "wall" times stages with time.perf_counter, "cpu" with time.process_time (less sensitive to other jobs
-    on a shared machine; decoding is single-threaded, so on a quiet machine both agree).
-    """
+def time_api(data: bytes, repeats: int, clock: str) -> dict:
+    """Median seconds per stage of `decode_detailed` and of the s prediction alone over `repeats` runs."""
     from tetweave_codec.decoder import decode_detailed
+    from tetweave_codec.formats import predict
+    from tetweave_codec.formats.common import FLAG_S_PREDICTED
 
     timer = time.process_time if clock == "cpu" else time.perf_counter
-    decode_detailed(data, backend)  # warm-up: imports, first-touch allocations
+    res = decode_detailed(data)  # warm-up: imports, first-touch allocations
+    tw = res.container
+    predicted = getattr(tw, "version", 1) == 2 and tw.flags & FLAG_S_PREDICTED
+    residual = predict.residuals(tw.cells, tw.s_sym) if predicted else None
     runs = []
     for _ in range(repeats):
         start = timer()
-        res = decode_detailed(data, backend, clock=timer)
+        res = decode_detailed(data, clock=timer)
         total = timer() - start
-        runs.append(dict(res.seconds, total=total))
+        row = dict(res.seconds, total=total)
+        if predicted:
+            start = timer()
+            predict.reconstruct(tw.cells, residual)
+            row["s_pred"] = timer() - start
+        runs.append(row)
     med = {k: statistics.median(r[k] for r in runs) for k in runs[0]}
-    med.update(tets=res.num_tets, vertices=len(res.vertices), faces=len(res.faces))
+    med.update(points=tw.num_points, faces=len(res.faces))
     return med
+
+
+def time_cli(path: Path, repeats: int) -> float:
+    """Median wall seconds of `tetweave decode path -o tmp.ply` in a fresh process (start to file written)."""
+    times = []
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp) / "out.ply"
+        cmd = [sys.executable, "-m", "tetweave_codec.cli.main", "decode", str(path), "-o", str(out)]
+        subprocess.run(cmd, check=True, capture_output=True)  # warm-up: file system caches
+        for _ in range(repeats):
+            start = time.perf_counter()
+            subprocess.run(cmd, check=True, capture_output=True)
+            times.append(time.perf_counter() - start)
+    return statistics.median(times)
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--meshes-dir", type=Path, default=DEFAULT_MESH_DIR,
+                        help=f"folder of the input meshes (default: {DEFAULT_MESH_DIR})")  # fmt: skip
+    parser.add_argument("--meshes", default="", help="comma-separated mesh names (default: every mesh there)")
     parser.add_argument("--sizes", type=parse_sizes, default=parse_sizes(DEFAULT_SIZES),
-                        help=f"point counts, k = 1024 (default: {DEFAULT_SIZES})")  # fmt: skip
-    parser.add_argument("--repeats", type=int, default=5, help="runs per size and backend; medians (default: 5)")
+                        help=f"file sizes, k = 1024 (default: {DEFAULT_SIZES})")  # fmt: skip
+    parser.add_argument("--files", type=Path, default=None,
+                        help=f"cached .tw files (default: ${CACHE_ENV} or ~/.cache/tetweave/decode_speed)")  # fmt: skip
+    parser.add_argument("--no-encode", action="store_true", help="time only the cached files; encode none")
+    parser.add_argument("--repeats", type=int, default=5, help="runs per file; medians (default: 5)")
+    parser.add_argument("--cli-repeats", type=int, default=5, help="CLI runs per file, 0: none (default: 5)")
     parser.add_argument("--threads", type=int, default=0,
                         help="cap numpy/BLAS/OpenMP threads (0: library defaults) (default: 0)")  # fmt: skip
-    parser.add_argument("--backend", default="auto", help="backend under test (default: auto = TetGen)")
-    parser.add_argument("--baseline", default="qhull", help="baseline backend, or 'none' (default: qhull)")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the point clouds (default: 0)")
     parser.add_argument("--clock", choices=("wall", "cpu"), default="wall",
-                        help="wall-clock or process CPU time (steadier on a busy machine) (default: wall)")  # fmt: skip
+                        help="wall-clock or process CPU time of the API stages (default: wall)")  # fmt: skip
     args = parser.parse_args(argv)
     if args.threads:
-        # Before numpy is imported (it is imported lazily below): thread pools read these at start-up.
+        # Before numpy is imported (lazily, below; the CLI subprocesses inherit them): pools read these at start-up.
         for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
             os.environ[var] = str(args.threads)
+    from tetweave_codec.benchmarks.batch import find_meshes
 
-    from tetweave_codec.geometry.delaunay import resolve_backend
-
-    backend = resolve_backend(args.backend)
-    baseline = None if args.baseline == "none" else resolve_backend(args.baseline)
-    print(f"# decode speed ({args.clock} clock): torus shell, SH degree 1, median of {args.repeats}; backend {backend}"
-          + (f", baseline {baseline}" if baseline else ""))  # fmt: skip
-    header = ["points", "tets", "faces", "Delaunay ms", "marching tets ms", "total ms"]
-    if baseline:
-        header += [f"{baseline} Delaunay ms", f"{baseline} total ms", f"{baseline} / {backend}"]
+    wanted = {m.strip() for m in args.meshes.split(",") if m.strip()}
+    meshes = [m for m in find_meshes(args.meshes_dir) if not wanted or m.stem in wanted]
+    cache = args.files or default_cache()
+    print(f"# decode speed ({args.clock} clock for the API stages, wall for the CLI): real v2 files from {cache}, "
+          f"median of {args.repeats} (CLI {args.cli_repeats})")  # fmt: skip
+    header = ["file", "bytes", "points", "faces", "unpack ms", "s pred ms", "Delaunay ms", "marching tets ms",
+              "total ms", "unpack / Delaunay", "total / Delaunay", "CLI ms", "CLI / Delaunay"]  # fmt: skip
     print("| " + " | ".join(header) + " |")
-    print("|" + "|".join("---:" for _ in header) + "|")
-    for n in args.sizes:
-        data = make_container(n, args.seed)
-        main_t = time_decode(data, backend, args.repeats, args.clock)
-        row = [f"{n:,}", f"{main_t['tets']:,}", f"{main_t['faces']:,}", f"{1e3 * main_t['delaunay']:.0f}",
-               f"{1e3 * main_t['marching_tets']:.1f}", f"{1e3 * main_t['total']:.0f}"]  # fmt: skip
-        if baseline:
-            base_t = time_decode(data, baseline, args.repeats, args.clock)
-            row += [f"{1e3 * base_t['delaunay']:.0f}", f"{1e3 * base_t['total']:.0f}",
-                    f"{base_t['total'] / main_t['total']:.1f}x"]  # fmt: skip
-        print("| " + " | ".join(row) + " |", flush=True)
+    print("|---|" + "|".join("---:" for _ in header[1:]) + "|")
+    for label, _ in sorted(set(args.sizes), key=lambda item: item[1]):
+        for mesh in meshes:
+            path = ensure_file(mesh, label, cache, not args.no_encode)
+            if path is None:
+                continue
+            data = path.read_bytes()
+            t = time_api(data, args.repeats, args.clock)
+            dl = t["delaunay"]
+            cli = time_cli(path, args.cli_repeats) if args.cli_repeats else float("nan")
+            s_pred = f"{1e3 * t['s_pred']:.1f}" if "s_pred" in t else "-"
+            ms = {k: f"{1e3 * t[k]:.1f}" for k in ("unpack", "delaunay", "marching_tets", "total")}
+            row = [path.stem, f"{len(data):,}", f"{t['points']:,}", f"{t['faces']:,}", ms["unpack"], s_pred,
+                   ms["delaunay"], ms["marching_tets"], ms["total"], f"{t['unpack'] / dl:.2f}",
+                   f"{t['total'] / dl:.2f}", f"{1e3 * cli:.0f}", f"{cli / dl:.1f}"]  # fmt: skip
+            print("| " + " | ".join(row) + " |", flush=True)
     return 0
 
 

@@ -19,12 +19,13 @@ def _box(lo: np.ndarray, hi: np.ndarray) -> str:
 
 def _v2_lines(file: Path, f, total: int, degree: str) -> list[tuple[str, str]]:
     from tetweave_codec.formats import quantize
-    from tetweave_codec.formats.common import FLAG_S_PREDICTED
+    from tetweave_codec.formats.common import FLAG_OCTREE_CONTEXTS, FLAG_S_PREDICTED
 
     n = f.num_points
     bpp = (lambda b: f"{8 * b / n:.2f} bits/point") if n else (lambda b: "-")
     steps = ", ".join(f"l={band}: {x:.6g}" for band, x in enumerate(f.c_band_steps)) or "none"
     predicted = "; s coded as prediction residuals" if f.flags & FLAG_S_PREDICTED else ""
+    predicted += "; octree context-coded" if f.flags & FLAG_OCTREE_CONTEXTS else ""
     lines = [
         ("file", str(file)),
         ("format", ".tw version 2 (quantized; octree + range-coded streams)"),

@@ -1,15 +1,29 @@
-"""What every `.tw` version shares: the magic, the flag bits, and the checks of the transform back to the input."""
+"""What every `.tw` version shares: the magic, the flag bits, the envelope (sizes and checksum) and the checks of
+the header fields both versions store (SH degree, flags, the transform back to the input).
+
+Readers raise `ContainerError` and writers `ValueError` from the same predicates, so a file a writer accepts is
+a file a reader accepts.
+"""
 
 from __future__ import annotations
 
+import struct
+import zlib
+
 import numpy as np
+
+from tetweave_codec.errors import ContainerError
+from tetweave_codec.geometry.sh import SH_DEGREE_MAX, SH_DEGREE_NONE, check_degree
 
 MAGIC = b"\x89TWV\r\n\x1a\n"  # bytes 0-7 of every version; the uint16 version follows at offset 8
 CHECKSUM_SIZE = 4  # CRC-32 (zlib) of every byte before it, the file's last 4 bytes
 FLAG_QHULL = 1 << 0  # the encoder's Delaunay backend was Qhull (else TetGen)
 FLAG_S_PREDICTED = 1 << 1  # version 2: the s stream holds residuals of the neighbour prediction (formats/predict.py)
+FLAG_OCTREE_CONTEXTS = 1 << 2  # version 2: octree levels may be coded bit by bit with neighbour contexts (octree.py)
 KNOWN_FLAGS = FLAG_QHULL  # version 1
-KNOWN_FLAGS_V2 = FLAG_QHULL | FLAG_S_PREDICTED
+KNOWN_FLAGS_V2 = FLAG_QHULL | FLAG_S_PREDICTED | FLAG_OCTREE_CONTEXTS
+# Largest normalized coordinate of version 1 (any finite float16); version 2's is the grid's, quantize.GRID_BOUND.
+COORDINATE_BOUND_V1 = float(np.finfo(np.float16).max)
 
 
 def backend_flags(backend: str) -> int:
@@ -26,15 +40,90 @@ def backend_name(flags: int) -> str:
     return "qhull" if flags & FLAG_QHULL else "tetgen"
 
 
-def checked_fields(scale, offset, flags, known: int = KNOWN_FLAGS) -> tuple[float, np.ndarray, int]:
-    """scale (float > 0), offset (3,) float64 and flags as a writer stores them; ValueError when invalid."""
+def _transform_problem(scale: float, offset: np.ndarray, bound: float) -> str | None:
+    """Why scale / offset cannot be stored (None if they can): scale finite and > 0, offset 3 finite numbers, and
+    ``bound * scale + |offset_i|`` finite in float64, so that every decoded vertex is finite in the input's frame."""
+    if not (np.isfinite(scale) and scale > 0):
+        return f"scale {scale} (must be finite and > 0)"
+    if offset.shape != (3,) or not np.isfinite(offset).all():
+        return "offset must be 3 finite numbers"
+    with np.errstate(over="ignore"):
+        reach = bound * scale + np.abs(offset)
+    if not np.isfinite(reach).all():
+        return f"scale {scale:g} and offset take the points beyond the float64 range"
+    return None
+
+
+def checked_fields(
+    scale, offset, flags, known: int = KNOWN_FLAGS, bound: float = COORDINATE_BOUND_V1
+) -> tuple[float, np.ndarray, int]:
+    """scale (float > 0), offset (3,) float64 and flags as a writer stores them; ValueError when invalid.
+
+    bound: the version's largest normalized coordinate (`COORDINATE_BOUND_V1`, `quantize.GRID_BOUND`)."""
     scale = float(scale)
     offset = np.asarray(offset, dtype=np.float64).reshape(-1)
-    if not (np.isfinite(scale) and scale > 0):
-        raise ValueError(f"scale must be finite and > 0, got {scale}")
-    if offset.shape != (3,) or not np.isfinite(offset).all():
-        raise ValueError("offset must be 3 finite numbers")
+    problem = _transform_problem(scale, offset, bound)
+    if problem:
+        raise ValueError(problem)
     flags = int(flags)
     if flags & ~known or flags < 0:
         raise ValueError(f"unknown flags 0x{flags:x}")
     return scale, offset, flags
+
+
+def read_transform(scale: float, offset_xyz, bound: float) -> tuple[float, np.ndarray]:
+    """A reader's scale and (3,) float64 offset from the header's doubles; ContainerError when invalid.
+
+    bound: the version's largest normalized coordinate (`COORDINATE_BOUND_V1`, `quantize.GRID_BOUND`)."""
+    scale = float(scale)
+    offset = np.array(offset_xyz, dtype=np.float64)
+    problem = _transform_problem(scale, offset, bound)
+    if problem:
+        raise ContainerError(f"invalid .tw header: {problem}")
+    return scale, offset
+
+
+def read_flags(flags: int, known: int) -> int:
+    """A reader's flags; ContainerError when a bit outside `known` is set."""
+    if flags & ~known:
+        raise ContainerError(f"invalid .tw header: unknown flags 0x{flags & ~known:x}")
+    return int(flags)
+
+
+def read_sh_degree(degree: int) -> int:
+    """A reader's SH degree (`sh.check_degree`, the one home of the rule); ContainerError when out of range."""
+    try:
+        return check_degree(int(degree))
+    except ValueError:
+        raise ContainerError(
+            f"invalid .tw header: SH degree {degree} (expected {SH_DEGREE_NONE}..{SH_DEGREE_MAX})"
+        ) from None
+
+
+def require_size(buf: bytes, needed: int, what: str) -> None:
+    """ContainerError "truncated" unless the file has at least `needed` bytes (`what` names the part)."""
+    if len(buf) < needed:
+        raise ContainerError(f"truncated .tw file: {len(buf)} bytes, {what} needs {needed}")
+
+
+def check_envelope(buf: bytes, expected: int) -> None:
+    """The whole-file checks of every version, in order: at least `expected` bytes (what the header announces),
+    no bytes after them, and the CRC-32 (zlib) of every byte before the last 4 equals the stored checksum.
+
+    Args:
+        buf: the file's bytes. expected: header + sections + checksum, as the header announces.
+    Raises ContainerError with a one-line message.
+    """
+    size = len(buf)
+    if size < expected:
+        raise ContainerError(f"truncated .tw file: {size} bytes, the header announces {expected}")
+    if size > expected:
+        raise ContainerError(f"corrupted .tw file: {size - expected} unexpected bytes after the checksum")
+    (stored_crc,) = struct.unpack_from("<I", buf, size - CHECKSUM_SIZE)
+    if zlib.crc32(memoryview(buf)[: size - CHECKSUM_SIZE]) != stored_crc:
+        raise ContainerError("corrupted .tw file: checksum mismatch")
+
+
+def seal(body: bytes) -> bytes:
+    """`body` followed by its CRC-32 (zlib), little-endian: how every version ends."""
+    return body + struct.pack("<I", zlib.crc32(body))

@@ -18,8 +18,12 @@ Two model kinds are built from the bytes stored in a file:
   ``V = sum(v)``; the remainder ``2**24 - A - sum(w)`` goes to the first symbol of largest ``v_i``.
 
 Contexts: `encode_grouped` / `decode_grouped` code a batch whose per-symbol context is known to both sides before
-the batch: the symbols of context 0 first (in batch order), then those of context 1, and so on. Every call of
-constriction codes an array, never a Python loop over symbols.
+the batch: the symbols of context 0 first (in batch order), then those of context 1, and so on.
+`encode_binary` / `decode_binary` code a batch of bits in batch order, each with its own binary model (rows of
+`binary_weight_rows`, e.g. the model of each bit's context): constriction's `Categorical(perfect=False)` with
+one row of weights per symbol, which quantizes each row exactly like the fixed model of the same weights
+(tests/test_bitstream.py compares the words).
+Every call of constriction codes an array, never a Python loop over symbols.
 
 Untrusted input: `Reader` wraps the decoder so that every failure (exceptions and Rust panics of constriction)
 becomes ContainerError; decoding reads at most the words it was given (constriction pads missing words with
@@ -62,10 +66,26 @@ def histogram_model(v):
 
 
 def binary_weights(v: int) -> np.ndarray:
-    v = int(v)
-    if not 1 <= v <= 255:
+    """Integer weights (2,) int64 of the binary model of byte v (1..255)."""
+    return binary_weight_rows([v])[0].astype(np.int64)
+
+
+def binary_weight_rows(v) -> np.ndarray:
+    """Weights (n, 2) float64 of the binary models of bytes ``v`` (n,) in 1..255 (as `binary_weights`, per row)."""
+    v = np.asarray(v, dtype=np.int64).reshape(-1)
+    if v.size and (v.min() < 1 or v.max() > 255):
         raise ContainerError("invalid .tw payload: bad binary model")
-    return np.array([(256 - v) * 65536 - 1, v * 65536 - 1], dtype=np.int64)
+    return np.stack([(256 - v) * 65536 - 1, v * 65536 - 1], axis=1).astype(np.float64)
+
+
+_PER_SYMBOL = None  # constriction's categorical family with per-symbol weights, built lazily
+
+
+def _per_symbol():
+    global _PER_SYMBOL
+    if _PER_SYMBOL is None:
+        _PER_SYMBOL = _CATEGORICAL(perfect=False)
+    return _PER_SYMBOL
 
 
 def binary_model(v: int):
@@ -154,6 +174,12 @@ class Writer:
     def encode_bits(self, bits, v: int) -> None:
         self.encode(bits, binary_model(v) if v != 128 else fair_bit())
 
+    def encode_binary(self, bits, rows: np.ndarray) -> None:
+        """Bits (n,) in batch order, bit j with the binary model of weights ``rows[j]`` (`binary_weight_rows`)."""
+        bits = np.ascontiguousarray(bits, dtype=np.int32).reshape(-1)
+        if bits.size:
+            self._enc.encode(bits, _per_symbol(), rows)
+
     def encode_raw(self, values, nbits) -> None:
         """Raw bits of `values`, bit planes from the most significant (each value has its own bit count)."""
         values = np.asarray(values, dtype=np.int64)
@@ -200,6 +226,16 @@ class Reader:
 
     def decode_bits(self, count: int, v: int) -> np.ndarray:
         return self.decode(binary_model(v) if v != 128 else fair_bit(), count)
+
+    def decode_binary(self, rows: np.ndarray) -> np.ndarray:
+        """Bits (n,) int64 coded by `Writer.encode_binary` with the weights ``rows`` (n, 2)."""
+        if not len(rows):
+            return np.zeros(0, dtype=np.int64)
+        try:
+            out = self._dec.decode(_per_symbol(), rows)
+        except BaseException as exc:  # noqa: B036
+            _reraise(exc, self.what)
+        return np.asarray(out, dtype=np.int64)
 
     def decode_raw(self, nbits) -> np.ndarray:
         nbits = np.asarray(nbits, dtype=np.int64)

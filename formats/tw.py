@@ -32,22 +32,28 @@ values) and raises `ContainerError` -- and only that -- with a one-line message.
 from __future__ import annotations
 
 import struct
-import zlib
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from tetweave_codec.errors import ContainerError
-from tetweave_codec.geometry.sh import SH_DEGREE_MAX, SH_DEGREE_NONE, num_coeffs
+from tetweave_codec.geometry.sh import check_degree, num_coeffs
 
 from .common import (  # noqa: F401 -- re-exported for readers of version 1
     CHECKSUM_SIZE,
+    COORDINATE_BOUND_V1,
     FLAG_QHULL,
     KNOWN_FLAGS,
     MAGIC,
     backend_flags,
     backend_name,
+    check_envelope,
     checked_fields,
+    read_flags,
+    read_sh_degree,
+    read_transform,
+    require_size,
+    seal,
 )
 from .tw2 import TetWeaveFileV2, pack_v2, quantize_file  # noqa: F401 -- version 2, re-exported
 
@@ -101,9 +107,7 @@ def payload_size(num_points: int, sh_degree: int) -> int:
 
 def pack(tw: TetWeaveFile) -> bytes:
     """Serialize a TetWeaveFile (version 1, raw codec). Raises ValueError on inconsistent contents."""
-    degree = int(tw.sh_degree)
-    if not SH_DEGREE_NONE <= degree <= SH_DEGREE_MAX:
-        raise ValueError(f"sh_degree must be in {SH_DEGREE_NONE}..{SH_DEGREE_MAX}, got {degree}")
+    degree = check_degree(tw.sh_degree)
     q = num_coeffs(degree)
     points = _as_f16(tw.points, "points")
     s = _as_f16(tw.s, "s")
@@ -122,9 +126,7 @@ def pack(tw: TetWeaveFile) -> bytes:
         raise ValueError(f"payload codec {tw.codec} is not implemented (only {CODEC_RAW} = raw)")
     payload = b"".join(a.astype("<f2").tobytes() for a in (points, s, c))
     fields = (MAGIC, VERSION, HEADER_SIZE, flags, n, degree, CODEC_RAW, 0, scale, *offset, len(payload))
-    header = struct.pack(HEADER_FORMAT, *fields)
-    body = header + payload
-    return body + struct.pack("<I", zlib.crc32(body))
+    return seal(struct.pack(HEADER_FORMAT, *fields) + payload)
 
 
 def _as_f16(a, name: str) -> np.ndarray:
@@ -161,36 +163,21 @@ def unpack(data: bytes | bytearray | memoryview) -> TetWeaveFile | TetWeaveFileV
         return unpack_v2(buf)
     if version != VERSION:
         raise ContainerError(f"unsupported .tw version {version} (this tetweave reads versions 1 and 2)")
-    if size < HEADER_SIZE + CHECKSUM_SIZE:
-        raise ContainerError(f"truncated .tw file: {size} bytes, the header alone needs {HEADER_SIZE}")
+    require_size(buf, HEADER_SIZE + CHECKSUM_SIZE, "the header alone")
     (_, _, header_size, flags, n, degree, codec, reserved, scale, ox, oy, oz, psize) = struct.unpack_from(
         HEADER_FORMAT, buf, 0
     )
-    expected = HEADER_SIZE + psize + CHECKSUM_SIZE
-    if size < expected:
-        raise ContainerError(f"truncated .tw file: {size} bytes, the header announces {expected}")
-    if size > expected:
-        raise ContainerError(f"corrupted .tw file: {size - expected} unexpected bytes after the checksum")
-    (stored_crc,) = struct.unpack_from("<I", buf, size - CHECKSUM_SIZE)
-    if zlib.crc32(memoryview(buf)[: size - CHECKSUM_SIZE]) != stored_crc:
-        raise ContainerError("corrupted .tw file: checksum mismatch")
+    check_envelope(buf, HEADER_SIZE + psize + CHECKSUM_SIZE)
     # The checksum matched, so the remaining checks catch files written wrongly rather than damaged ones.
     if header_size != HEADER_SIZE:
         raise ContainerError(f"invalid .tw header: header size {header_size}, version 1 has {HEADER_SIZE}")
-    if flags & ~KNOWN_FLAGS:
-        raise ContainerError(f"invalid .tw header: unknown flags 0x{flags & ~KNOWN_FLAGS:x}")
-    if not SH_DEGREE_NONE <= degree <= SH_DEGREE_MAX:
-        expected_range = f"{SH_DEGREE_NONE}..{SH_DEGREE_MAX}"
-        raise ContainerError(f"invalid .tw header: SH degree {degree} (expected {expected_range})")
+    flags = read_flags(flags, KNOWN_FLAGS)
+    degree = read_sh_degree(degree)
     if codec != CODEC_RAW:
         raise ContainerError(f"unsupported .tw payload codec {codec} (this tetweave reads {CODEC_RAW} = raw)")
     if reserved != 0:
         raise ContainerError("invalid .tw header: reserved field is not zero")
-    if not (np.isfinite(scale) and scale > 0):
-        raise ContainerError(f"invalid .tw header: scale {scale} (must be finite and > 0)")
-    offset = np.array([ox, oy, oz], dtype=np.float64)
-    if not np.isfinite(offset).all():
-        raise ContainerError("invalid .tw header: non-finite offset")
+    scale, offset = read_transform(scale, (ox, oy, oz), COORDINATE_BOUND_V1)
     if psize != payload_size(n, degree):
         raise ContainerError(
             f"invalid .tw header: payload of {psize} bytes, {n} points at SH degree {degree} need "
@@ -204,4 +191,4 @@ def unpack(data: bytes | bytearray | memoryview) -> TetWeaveFile | TetWeaveFileV
     for name, arr in (("point coordinates", points), ("signed distances", s), ("SH coefficients", c)):
         if not np.isfinite(arr).all():
             raise ContainerError(f"invalid .tw payload: non-finite {name}")
-    return TetWeaveFile(points, s, c, int(degree), float(scale), offset, int(flags), int(codec))
+    return TetWeaveFile(points, s, c, degree, scale, offset, flags, int(codec))

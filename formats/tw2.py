@@ -7,7 +7,8 @@ offset  size       type     field
 ======  =========  =======  ==========================================================================
 0       8          bytes    magic ``89 54 57 56 0D 0A 1A 0A`` (as version 1)
 8       2          uint16   version = 2
-10      1          uint8    flags; bit 0: Delaunay backend (0 = TetGen, 1 = Qhull); bit 1: s predicted; others 0
+10      1          uint8    flags; bit 0: Delaunay backend (0 = TetGen, 1 = Qhull); bit 1: s predicted;
+                            bit 2: octree context-coded; others 0
 11      1          int8     SH degree d in -1..3
 12      1          uint8    position bits b in 6..16
 13      4          uint32   N, number of points (<= MAX_POINTS)
@@ -26,18 +27,30 @@ end-4   4          uint32   CRC-32 (zlib) of every byte before it
 from __future__ import annotations
 
 import struct
-import zlib
 from dataclasses import dataclass, field
 from functools import cached_property
 
 import numpy as np
 
 from tetweave_codec.errors import ContainerError
-from tetweave_codec.geometry.sh import SH_DEGREE_MAX, SH_DEGREE_NONE, num_coeffs
+from tetweave_codec.geometry.sh import SH_DEGREE_NONE, check_degree, num_coeffs
 
-from . import attributes, octree
+from . import attributes, common, octree
 from . import quantize as Q
-from .common import CHECKSUM_SIZE, FLAG_S_PREDICTED, KNOWN_FLAGS_V2, MAGIC, backend_name, checked_fields
+from .common import (
+    CHECKSUM_SIZE,
+    FLAG_S_PREDICTED,
+    KNOWN_FLAGS_V2,
+    MAGIC,
+    backend_name,
+    check_envelope,
+    checked_fields,
+    read_flags,
+    read_sh_degree,
+    read_transform,
+    require_size,
+    seal,
+)
 
 VERSION = 2
 FIXED_FORMAT = "<8sHBbBI4df"
@@ -62,7 +75,7 @@ class TetWeaveFileV2:
     c_sym: (N, q) int64 c symbols (`quantize.quantize_c`), q = num_coeffs(sh_degree).
     position_bits: b in 6..16. s_step: float (stored as float32). c_band_steps: d + 1 floats (float32).
     sh_degree: -1..3. scale, offset: ``original = normalized * scale + offset``. flags: bit 0 = Qhull, bit 1 = s
-    coded as prediction residuals (what the encoder writes).
+    coded as prediction residuals, bit 2 = octree levels context-coded (what the encoder writes).
     sizes: byte size of each part of the file it was read from ("header", "positions", "s", "c",
     "checksum"), or None for a file built in memory.
 
@@ -151,9 +164,7 @@ def pack_v2(f: TetWeaveFileV2) -> bytes:
     """Serialize a TetWeaveFileV2. Points are sorted into canonical order here (with their s and c);
     duplicate cells raise ValueError (merge them first: `quantize.merge_collisions` or `quantize_file`).
     Raises ValueError on inconsistent contents."""
-    degree = int(f.sh_degree)
-    if not SH_DEGREE_NONE <= degree <= SH_DEGREE_MAX:
-        raise ValueError(f"sh_degree must be in {SH_DEGREE_NONE}..{SH_DEGREE_MAX}, got {degree}")
+    degree = check_degree(f.sh_degree)
     q = num_coeffs(degree)
     bits = Q.check_bits(f.position_bits)
     cells = np.asarray(f.cells, dtype=np.int64)
@@ -181,8 +192,8 @@ def pack_v2(f: TetWeaveFileV2) -> bytes:
     band_steps = [Q.stored_step(x) for x in np.asarray(f.c_band_steps, dtype=np.float64).reshape(-1)]
     if len(band_steps) != degree + 1:
         raise ValueError(f"need {degree + 1} c band steps for SH degree {degree}, got {len(band_steps)}")
-    scale, offset, flags = checked_fields(f.scale, f.offset, f.flags, KNOWN_FLAGS_V2)
-    models, words = octree.encode(cells, bits)
+    scale, offset, flags = checked_fields(f.scale, f.offset, f.flags, KNOWN_FLAGS_V2, Q.GRID_BOUND)
+    models, words = octree.encode(cells, bits, contexts=bool(flags & common.FLAG_OCTREE_CONTEXTS))
     if flags & FLAG_S_PREDICTED:
         s_section = attributes.encode_s_predicted(s_sym, cells)
     else:
@@ -190,8 +201,7 @@ def pack_v2(f: TetWeaveFileV2) -> bytes:
     sections = (models + words, s_section, attributes.encode_c(c_sym, degree) if n else b"")
     header = struct.pack(FIXED_FORMAT, MAGIC, VERSION, flags, degree, bits, n, scale, *offset, s_step)
     header += struct.pack(f"<{degree + 1}f", *band_steps) + struct.pack("<3I", *(len(x) for x in sections))
-    body = header + b"".join(sections)
-    return body + struct.pack("<I", zlib.crc32(body))
+    return seal(header + b"".join(sections))
 
 
 # -----------------------------------------------------------------------------------------------------------
@@ -200,53 +210,36 @@ def pack_v2(f: TetWeaveFileV2) -> bytes:
 
 def unpack_v2(buf: bytes) -> TetWeaveFileV2:
     """Parse and validate a version-2 file (magic and version already checked). Raises ContainerError only."""
-    size = len(buf)
-    if size < header_size(SH_DEGREE_NONE) + CHECKSUM_SIZE:
-        raise ContainerError(f"truncated .tw file: {size} bytes, a version-2 header needs at least 69")
+    require_size(buf, header_size(SH_DEGREE_NONE) + CHECKSUM_SIZE, "a version-2 header")
     (_, _, flags, degree, bits, n, scale, ox, oy, oz, s_step) = struct.unpack_from(FIXED_FORMAT, buf, 0)
-    if not SH_DEGREE_NONE <= degree <= SH_DEGREE_MAX:
-        raise ContainerError(f"invalid .tw header: SH degree {degree} (expected {SH_DEGREE_NONE}..{SH_DEGREE_MAX})")
+    degree = read_sh_degree(degree)
     hsize = header_size(degree)
-    if size < hsize + CHECKSUM_SIZE:
-        raise ContainerError(f"truncated .tw file: {size} bytes, the header alone needs {hsize}")
+    require_size(buf, hsize + CHECKSUM_SIZE, "the header alone")
     band_steps = struct.unpack_from(f"<{degree + 1}f", buf, FIXED_SIZE)
     section_sizes = struct.unpack_from("<3I", buf, hsize - 12)
-    expected = hsize + sum(section_sizes) + CHECKSUM_SIZE
-    if size < expected:
-        raise ContainerError(f"truncated .tw file: {size} bytes, the header announces {expected}")
-    if size > expected:
-        raise ContainerError(f"corrupted .tw file: {size - expected} unexpected bytes after the checksum")
-    (stored_crc,) = struct.unpack_from("<I", buf, size - CHECKSUM_SIZE)
-    if zlib.crc32(memoryview(buf)[: size - CHECKSUM_SIZE]) != stored_crc:
-        raise ContainerError("corrupted .tw file: checksum mismatch")
+    check_envelope(buf, hsize + sum(section_sizes) + CHECKSUM_SIZE)
     # Behind a valid checksum: the remaining checks catch files written wrongly (or forged) rather than damaged.
-    if flags & ~KNOWN_FLAGS_V2:
-        raise ContainerError(f"invalid .tw header: unknown flags 0x{flags & ~KNOWN_FLAGS_V2:x}")
+    flags = read_flags(flags, KNOWN_FLAGS_V2)
     if not Q.POSITION_BITS_MIN <= bits <= Q.POSITION_BITS_MAX:
         raise ContainerError(
             f"invalid .tw header: {bits} position bits (expected {Q.POSITION_BITS_MIN}..{Q.POSITION_BITS_MAX})"
         )
     if n > MAX_POINTS:
         raise ContainerError(f"invalid .tw header: {n} points (a version-2 file holds at most {MAX_POINTS})")
-    if not (np.isfinite(scale) and scale > 0):
-        raise ContainerError(f"invalid .tw header: scale {scale} (must be finite and > 0)")
-    offset = np.array([ox, oy, oz], dtype=np.float64)
-    if not np.isfinite(offset).all():
-        raise ContainerError("invalid .tw header: non-finite offset")
+    scale, offset = read_transform(scale, (ox, oy, oz), Q.GRID_BOUND)
     for name, st in (("s step", s_step), *(("c step", x) for x in band_steps)):
         if not (np.isfinite(st) and st >= Q.MIN_STEP):
             raise ContainerError(f"invalid .tw header: {name} {st} (must be a finite, normal float32 > 0)")
-    q = num_coeffs(int(degree))
+    q = num_coeffs(degree)
     if n == 0 and any(section_sizes):
         raise ContainerError("invalid .tw header: sections for zero points")
     if n and q == 0 and section_sizes[2]:
         raise ContainerError("invalid .tw header: a c section without SH coefficients")
     starts = np.cumsum((hsize, *section_sizes))
     sec = [buf[int(starts[i]) : int(starts[i + 1])] for i in range(3)]
-    model_bytes = bits * octree.MODEL_BYTES_PER_LEVEL if n else 0
-    if len(sec[0]) < model_bytes:
-        raise ContainerError("invalid .tw payload: the positions section is shorter than its models")
-    cells = octree.decode(sec[0][:model_bytes], sec[0][model_bytes:], int(bits), int(n))
+    contexts = bool(flags & common.FLAG_OCTREE_CONTEXTS)
+    model_bytes = octree.model_size(sec[0], int(bits), int(n), contexts)
+    cells = octree.decode(sec[0][:model_bytes], sec[0][model_bytes:], int(bits), int(n), contexts)
     if flags & FLAG_S_PREDICTED:
         s_sym = attributes.decode_s_predicted(sec[1], cells)
     else:
@@ -254,6 +247,6 @@ def unpack_v2(buf: bytes) -> TetWeaveFileV2:
     c_sym = attributes.decode_c(sec[2], int(n), int(degree))
     sizes = {"header": hsize, **dict(zip(SECTIONS, section_sizes, strict=True)), "checksum": CHECKSUM_SIZE}
     return TetWeaveFileV2(
-        cells, s_sym, c_sym, int(bits), float(s_step), tuple(float(x) for x in band_steps), int(degree),
-        float(scale), offset, int(flags), sizes,
+        cells, s_sym, c_sym, int(bits), float(s_step), tuple(float(x) for x in band_steps), degree,
+        scale, offset, flags, sizes,
     )  # fmt: skip

@@ -13,6 +13,7 @@ from hypothesis import strategies as st
 from tetweave_codec.errors import ContainerError
 from tetweave_codec.formats import entropy, octree, tw
 from tetweave_codec.formats import quantize as Q
+from tetweave_codec.formats.common import FLAG_OCTREE_CONTEXTS
 from tetweave_codec.formats.tw2 import MAX_POINTS, TetWeaveFileV2, header_size, pack_v2, quantize_file, unpack_v2
 from tetweave_codec.geometry.sh import num_coeffs
 
@@ -30,6 +31,19 @@ def random_file(n=40, degree=1, bits=10, seed=0, s_step=1e-3, c_step=0.2, flags=
     f, _ = quantize_file(
         pts, s, c, degree, position_bits=bits, s_step=s_step, c_band_steps=[c_step] * (degree + 1),
         scale=3.0, offset=(1.0, 2.0, -0.5), flags=flags,
+    )  # fmt: skip
+    return f
+
+
+def shell_file(n=600, bits=9, seed=0, flags=FLAG_OCTREE_CONTEXTS | 2) -> TetWeaveFileV2:
+    """Points near a sphere, like a fitted shape: the octree's middle levels have occupied face neighbours."""
+    rng = np.random.default_rng(seed)
+    d = rng.normal(size=(n, 3))
+    pts = 0.8 * d / np.linalg.norm(d, axis=1, keepdims=True) + rng.normal(scale=0.01, size=(n, 3))
+    s = np.linalg.norm(pts, axis=1) - 0.8
+    f, _ = quantize_file(
+        pts, s, rng.normal(scale=0.2, size=(n, 4)), 1, position_bits=bits, s_step=1e-3, c_band_steps=[0.2, 0.2],
+        flags=flags,
     )  # fmt: skip
     return f
 
@@ -64,7 +78,8 @@ def test_position_quantizer_cell_centres_and_clamping():
         assert np.array_equal(x, ((2 * k + 1 - n) * 1.2) / n)
         np.testing.assert_allclose(x, -1.2 + (k + 0.5) * Q.cell_size(bits), rtol=0, atol=1e-15)
         assert np.array_equal(Q.quantize_positions(x, bits), k)
-        assert np.array_equal(x[0], -x[0][::-1] * [1, 1, 1]) or True
+        every = Q.dequantize_positions(np.repeat(np.arange(n)[:, None], 3, axis=1), bits)
+        assert np.array_equal(every[::-1], -every)  # the grid is exactly symmetric about 0 (x 1.2 rounds evenly)
     far = np.array([[-5.0, 5.0, 1.2], [-1.2, 1.19999, 0.0]])
     assert Q.quantize_positions(far, 10).tolist() == [[0, 1023, 1023], [0, 1023, 512]]
     with pytest.raises(ValueError):
@@ -90,7 +105,7 @@ def test_s_quantizer_preserves_the_sign_and_never_gives_zero():
     step = Q.stored_step(5e-4)
     assert step == float(np.float32(5e-4))
     inner = np.abs(s) < 100
-    assert np.abs(v - s)[inner].max() <= step / 2 * (1 + 1e-12) + 1e-12 or True
+    assert np.abs(v - s)[inner].max() <= step / 2 * (1 + 1e-12)  # mid-rise: at most half a step off
     ok = np.abs(s) < 1
     assert np.all(np.abs(v[ok] - s[ok]) <= step)
 
@@ -185,7 +200,7 @@ def v2_files(draw):
     steps = tuple(float(np.float32(x)) for x in rng.uniform(1e-3, 1, degree + 1))
     f = TetWeaveFileV2(
         cells[perm], s_sym[perm], c_sym[perm], bits, float(np.float32(draw(st.floats(1e-6, 10)))), steps,
-        degree, draw(st.floats(1e-6, 1e6)), rng.normal(size=3), draw(st.sampled_from([0, 1, 2, 3])),
+        degree, draw(st.floats(1e-6, 1e6)), rng.normal(size=3), draw(st.integers(0, 7)),
     )  # fmt: skip
     return f, perm
 
@@ -233,7 +248,7 @@ def test_pack_v2_rejects_bad_contents():
         dict(position_bits=5),
         dict(scale=-1.0),
         dict(s_sym=np.full(10, Q.S_SYMBOL_LIMIT), flags=2),
-        dict(flags=4),
+        dict(flags=8),
     ]
     fields = dict(f.__dict__)
     fields.pop("sizes", None)
@@ -260,6 +275,99 @@ def test_entropy_models_are_the_documented_integers():
         entropy.binary_weights(0)
 
 
+def test_per_symbol_binary_models_code_exactly_like_the_fixed_models():
+    """encode_binary (one weight row per bit) must give the same words as the documented fixed binary models."""
+    rng = np.random.default_rng(2)
+    for _ in range(50):
+        v = rng.integers(1, 256, int(rng.integers(1, 300)))
+        bits = (rng.random(len(v)) < v / 256).astype(np.int64)
+        fixed = entropy.Writer()
+        for b, vv in zip(bits, v, strict=True):
+            fixed.encode_bits([b], int(vv))
+        rows = entropy.Writer()
+        rows.encode_binary(bits, entropy.binary_weight_rows(v))
+        words = rows.finish()
+        assert words == fixed.finish()
+        assert np.array_equal(entropy.Reader(words, "x").decode_binary(entropy.binary_weight_rows(v)), bits)
+    with pytest.raises(ContainerError):
+        entropy.binary_weight_rows([1, 0])
+
+
+@given(st.integers(1, 10), st.integers(1, 400), st.integers(0, 2**32 - 1))
+@settings(max_examples=40, deadline=None)
+def test_face_neighbours_match_a_brute_force_search(level, n, seed):
+    rng = np.random.default_rng(seed)
+    cells = np.unique(rng.integers(0, 2**level, (n, 3)) // rng.integers(1, 3), axis=0)
+    keys = np.sort(Q.morton_keys(cells).astype(np.int64))
+    cells = octree._cells_from_keys(keys)
+    got = octree.face_neighbours(keys, level)
+    present = set(map(tuple, cells.tolist()))
+    steps = ((-1, 0, 0), (1, 0, 0), (0, -1, 0), (0, 1, 0), (0, 0, -1), (0, 0, 1))
+    expected = [[tuple(np.add(c, d).tolist()) in present for d in steps] for c in cells.tolist()]
+    assert np.array_equal(got, np.array(expected, dtype=bool).reshape(-1, 6))
+
+
+def test_context_coded_octree_round_trips_and_codes_middle_levels_bitwise():
+    f = shell_file()
+    cells = f.cells[Q.canonical_order(f.cells)]
+    plain = octree.encode(cells, 9)
+    models, words = octree.encode(cells, 9, contexts=True)
+    mask = int.from_bytes(models[:2], "little")
+    assert mask and not mask & 1  # some levels bit-coded, never the root (one node, no neighbours)
+    assert len(models) == octree.model_size(models + words, 9, len(cells), contexts=True)
+    assert len(models) + len(words) < sum(map(len, plain))
+    assert octree.contexts_pay(f.cells, 9)
+    scattered, _ = Q.merge_collisions(np.random.default_rng(1).integers(0, 2**12, (200, 3)))
+    assert not octree.contexts_pay(scattered, 12)  # no neighbours anywhere: the encoder keeps the plain coding
+    assert np.array_equal(octree.decode(models, words, 9, len(cells), contexts=True), cells)
+    for n in (len(cells) - 1, len(cells) + 1):
+        with pytest.raises(ContainerError, match="octree"):
+            octree.decode(models, words, 9, n, contexts=True)
+    g = tw.unpack(pack_v2(f))
+    assert_same(f, g) and g.flags & FLAG_OCTREE_CONTEXTS
+
+
+@given(st.integers(6, 12), st.integers(1, 400), st.integers(1, 40), st.integers(0, 2**32 - 1))
+@settings(max_examples=40, deadline=None)
+def test_context_coded_octree_round_trips_dense_and_sparse_sets(bits, n, spread, seed):
+    """Blobs of every density (spread = cells around a few centres): whatever levels are bit-coded, exact cells."""
+    rng = np.random.default_rng(seed)
+    centre = rng.integers(0, 2**bits, (int(rng.integers(1, 5)), 3))
+    cells = centre[rng.integers(0, len(centre), n)] + rng.integers(-spread, spread + 1, (n, 3))
+    cells, _ = Q.merge_collisions(np.clip(cells, 0, 2**bits - 1))
+    models, words = octree.encode(cells, bits, contexts=True)
+    assert np.array_equal(octree.decode(models, words, bits, len(cells), contexts=True), cells)
+
+
+def test_context_coded_octree_models_are_validated():
+    f = shell_file()
+    cells = f.cells[Q.canonical_order(f.cells)]
+    models, words = octree.encode(cells, 9, contexts=True)
+    mask = int.from_bytes(models[:2], "little")
+    with pytest.raises(ContainerError, match="beyond"):
+        octree.model_size((mask | 1 << 9).to_bytes(2, "little") + models[2:] + words, 9, len(cells), True)
+    for size in range(len(models)):
+        with pytest.raises(ContainerError, match="shorter"):
+            octree.model_size(models[:size], 9, len(cells), True)
+    level = (mask & -mask).bit_length() - 1  # first bit-coded level: its 12 bytes follow 8 per earlier level
+    bad = bytearray(models)
+    bad[2 + 8 * level] = 0
+    with pytest.raises(ContainerError, match="binary model"):
+        octree.decode(bytes(bad), words, 9, len(cells), contexts=True)
+
+
+def test_files_without_the_new_flags_keep_their_bytes():
+    """Golden digests of files written before flag bit 2 existed: the plain codings must not change."""
+    import hashlib
+
+    digests = {
+        0: "398ecd0cabdab3d6fd6f88093ff9959f93b2d2ca47b6f2a82afb07dd4b76547f",
+        2: "1991eef63264eb9d5bd9fed91b02bb3d032028ab5e8eeaac26cffcc0346a0cfa",
+    }
+    for flags, digest in digests.items():
+        assert hashlib.sha256(pack_v2(random_file(n=300, degree=1, bits=10, seed=5, flags=flags))).hexdigest() == digest
+
+
 def test_octree_never_yields_more_points_than_announced():
     cells, _ = Q.merge_collisions(np.random.default_rng(0).integers(0, 64, (30, 3)))
     models, words = octree.encode(cells, 6)
@@ -273,9 +381,9 @@ def test_octree_never_yields_more_points_than_announced():
 # hostile input
 
 
-@pytest.mark.parametrize("flags", [0, 2])
+@pytest.mark.parametrize("flags", [0, 2, 6])
 def test_every_truncation_is_rejected(flags):
-    data = pack_v2(random_file(n=30, degree=1, flags=flags))
+    data = pack_v2(shell_file(n=60, bits=7, flags=flags) if flags & 4 else random_file(n=30, degree=1, flags=flags))
     for size in range(len(data)):
         with pytest.raises(ContainerError):
             tw.unpack(data[:size])
@@ -284,6 +392,7 @@ def test_every_truncation_is_rejected(flags):
 def test_random_byte_flips_with_a_valid_checksum_decode_or_raise_container_error():
     cases = ((40, 1, 10, 0), (12, 3, 6, 0), (25, -1, 16, 0), (40, 1, 10, 2), (30, 0, 8, 3))
     files = [pack_v2(random_file(n=n, degree=d, bits=b, seed=n, flags=fl)) for n, d, b, fl in cases]
+    files.append(pack_v2(shell_file(n=150, bits=8)))  # bit-coded octree levels
     rng = np.random.default_rng(7)
     outcomes = {"ok": 0, "error": 0}
     for trial in range(3000):
@@ -360,6 +469,34 @@ def test_random_streams_behind_valid_headers(flags):
     assert ok > 250  # random words are valid streams (they decode to some symbols)
 
 
+def test_random_context_coded_positions_behind_valid_headers():
+    """Flag bit 2: random level masks, model bytes and words for the positions; only ContainerError or a valid file."""
+    f = shell_file(n=200, bits=8)
+    data = pack_v2(f)
+    hsize = header_size(1)
+    pos_size = struct.unpack_from("<I", data, hsize - 12)[0]
+    rest = data[hsize + pos_size : -4]
+    rng = np.random.default_rng(11)
+    outcomes = {"ok": 0, "error": 0}
+    for _ in range(400):
+        mask = int(rng.integers(0, 1 << 8))
+        models = mask.to_bytes(2, "little") + bytes(
+            int(x) for x in rng.integers(1, 256, 8 * 8 + 4 * bin(mask).count("1"))
+        )
+        words = rng.integers(0, 256, 4 * int(rng.integers(0, 80)), dtype=np.uint8).tobytes()
+        sizes = (len(models) + len(words), *struct.unpack_from("<2I", data, hsize - 8))
+        body = data[: hsize - 12] + struct.pack("<3I", *sizes) + models + words + rest
+        try:
+            g = tw.unpack(body + struct.pack("<I", zlib.crc32(body)))
+        except ContainerError as exc:
+            assert "\n" not in str(exc)
+            outcomes["error"] += 1
+            continue
+        outcomes["ok"] += 1
+        assert_valid(g)
+    assert outcomes["error"] > 300
+
+
 def test_n_above_the_format_limit_is_rejected_before_decoding():
     data = bytearray(pack_v2(random_file(n=5)))
     struct.pack_into("<I", data, 13, MAX_POINTS + 1)
@@ -370,12 +507,13 @@ def test_n_above_the_format_limit_is_rejected_before_decoding():
 @pytest.mark.parametrize(
     "offset, fmt, value, message",
     [
-        (10, "<B", 4, "unknown flags"),
+        (10, "<B", 8, "unknown flags"),
         (11, "<b", 4, "SH degree"),
         (12, "<B", 5, "position bits"),
         (12, "<B", 17, "position bits"),
         (17, "<d", 0.0, "scale"),
         (17, "<d", float("inf"), "scale"),
+        (17, "<d", 1.7e308, "float64 range"),  # 1.2 x 1.7e308 overflows: decoded vertices would be infinite
         (25, "<d", float("nan"), "offset"),
         (49, "<f", 0.0, "s step"),
         (49, "<f", float("nan"), "s step"),

@@ -200,16 +200,18 @@ def test_directories_as_input_or_output(tw_file, tmp_path):
     assert_clean_failure(run("decode", tw_file, "-o", tmp_path / "dir.obj"), message="is a directory")
 
 
-def test_decoding_works_without_torch(tmp_path):
+@pytest.mark.parametrize("ext", [".ply", ".obj"])
+def test_decoding_works_without_torch(tmp_path, ext):
     """The decode path is numpy only: `tetweave decode` runs, and gives the right mesh, where torch cannot be
-    imported at all (sys.modules["torch"] = None makes every `import torch` raise ImportError)."""
+    imported at all (sys.modules["torch"] = None makes every `import torch` raise ImportError); PLY and OBJ are
+    written without trimesh, whose import costs more than a decode."""
     import sys
 
     tw = tmp_path / "shape.tw"
     write_sphere(tw)
-    out = tmp_path / "shape.ply"
+    out = tmp_path / f"shape{ext}"
     code = (
-        "import sys; sys.modules['torch'] = None; "
+        "import sys; sys.modules['torch'] = None; sys.modules['trimesh'] = None; "
         "from tetweave_codec.cli.main import main; "
         f"main(['decode', {str(tw)!r}, '-o', {str(out)!r}])"
     )

@@ -113,8 +113,9 @@ def test_pack_is_deterministic_and_casts_other_floats():
         (dict(points=np.zeros((20, 2), np.float16)), "points"),
         (dict(s=np.zeros(19, np.float16)), "s must be"),
         (dict(c=np.zeros((20, 4), np.float16)), "c must be"),
-        (dict(sh_degree=4), "sh_degree"),
+        (dict(sh_degree=4), "SH degree"),
         (dict(scale=0.0), "scale"),
+        (dict(scale=1e305), "float64 range"),  # 65504 (largest float16) x 1e305 overflows
         (dict(scale=float("nan")), "scale"),
         (dict(offset=np.array([0, np.inf, 0])), "offset"),
         (dict(flags=2), "flags"),
@@ -201,6 +202,7 @@ def test_other_file_types_are_not_tw():
         (24, "<d", 0.0, "scale"),
         (24, "<d", -1.0, "scale"),
         (24, "<d", float("inf"), "scale"),
+        (24, "<d", 1e305, "float64 range"),
         (32, "<d", float("nan"), "offset"),
         (16, "<I", 21, "payload"),
     ],

@@ -7,8 +7,11 @@ import time
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from scipy.spatial import ConvexHull
 
+from tetweave_codec.errors import TopologyError
 from tetweave_codec.geometry import delaunay as dl
 from tetweave_codec.geometry.delaunay import TET_OUTWARD_FACES, delaunay, orientation, resolve_backend, tetrahedralize
 
@@ -90,13 +93,13 @@ def test_backends_agree_in_general_position():
 
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_cospherical_lattice_is_consistently_oriented(backend):
-    """A lattice is maximally degenerate: Qhull emits flat tets there, which must still be oriented."""
+    """A lattice is maximally degenerate: tets of 4 coplanar points (flat) exist and must still be oriented."""
     pts = _lattice(5)
     tz = tetrahedralize(pts, backend)
     assert_valid_complex(pts, tz.tets, tz.hull_faces)
     assert _volumes(pts, tz.tets).sum() == pytest.approx(1.0, abs=1e-12)
     if backend == "qhull":
-        assert np.any(orientation(pts, tz.tets) == 0), "expected Qhull to produce flat tets on a lattice"
+        assert np.any(orientation(pts, tz.tets) == 0), "expected tets of coplanar lattice points"
 
 
 @pytest.mark.parametrize("backend", BACKENDS)
@@ -128,7 +131,16 @@ def test_near_duplicates_neither_stall_nor_crash(backend):
     tz = tetrahedralize(pts, backend)
     assert time.perf_counter() - start < 20
     assert len(tz.tets) > 0 and tz.tets.max() < len(pts)
-    assert np.all(orientation(pts, tz.tets) >= 0)
+    inverted = orientation(pts, tz.tets) < 0
+    if backend == "qhull":
+        # Qhull triangulates points moved by < 2^-24 (the tie-break): tets with two corners closer than that may
+        # be inverted in true coordinates, but only those, and they are positive where Qhull saw them.
+        assert np.all(orientation(dl.perturb_points(pts), tz.tets) > 0)
+        corners = pts[tz.tets[inverted]]
+        gaps = np.linalg.norm(corners[:, :, None] - corners[:, None, :], axis=-1) + np.eye(4) * 10
+        assert np.all(gaps.min(axis=(1, 2)) < 2.0**-23)
+    else:
+        assert not inverted.any()
 
 
 @pytest.mark.parametrize("backend", BACKENDS)
@@ -190,3 +202,95 @@ def test_qhull_fallback_without_tetgenpy(monkeypatch):
         resolve_backend("tetgen")
     pts = np.random.default_rng(9).uniform(size=(50, 3))
     assert tetrahedralize(pts).backend == "qhull"
+
+
+# -----------------------------------------------------------------------------------------------------------
+# the Qhull tie-break (issue 16): perturbed coordinates, checked result
+
+
+def test_perturbation_matches_the_specification():
+    """The worked example of formats/README.md ("Decoding", step 2): hash, 2^(e - 25) bound, one rounding."""
+    pts = np.array([[0.5, -0.25, 1.0], [-0.0, 0.0, 0.0]])
+    assert [int(h) for h in dl._coordinate_hash(pts)] == [0xAA8C01ACFF9FF10D, 0x238275BC38FCBE91]
+    moved = dl.perturb_points(pts)
+    # max |coordinate| = 1 = 0.5 * 2^1, so e = 1 and the unit is 2^(1 - 25 - 20) = 2^-44.
+    expected_u = [[1044749.5, -169987.5, -351487.5], [835217.5, -138808.5, -466786.5]]
+    assert ((moved - pts) * 2.0**44).tolist() == expected_u
+    assert moved[0].tolist() == [
+        float.fromhex(x) for x in ("0x1.000001fe21bp-1", "-0x1.000000a600ep-2", "0x1.ffffff54601p-1")
+    ]
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), scale=st.sampled_from([1e-3, 1.0, 1.2, 700.0]))
+def test_perturbation_depends_on_coordinates_only(seed, scale):
+    rng = np.random.default_rng(seed)
+    pts = rng.uniform(-scale, scale, (200, 3))
+    pts[::7] = pts[1::7][: len(pts[::7])]  # coincident points
+    moved = dl.perturb_points(pts)
+    perm = rng.permutation(len(pts))
+    assert np.array_equal(dl.perturb_points(pts[perm]), moved[perm])
+    _, e = np.frexp(np.abs(pts).max())
+    assert np.all(np.abs(moved - pts) <= 2.0 ** (int(e) - 25))
+    same = np.all(pts[:, None] == pts[None], -1)
+    assert np.array_equal(same, np.all(moved[:, None] == moved[None], -1))
+
+
+def _lattice_cluster(bits: int, count: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """A dense random cluster of a 2^bits lattice: (cells (M, 3) int64, their centres over [-1.2, 1.2]^3 as the v2
+    container dequantizes them, float64)."""
+    rng = np.random.default_rng(seed)
+    m = 1 << bits
+    width = max(2, round(count ** (1 / 3) * 1.3))
+    cells = np.unique(rng.integers(0, m - width, 3) + rng.integers(0, width, (count, 3)), axis=0)
+    return cells, ((2 * cells + 1 - m) * 1.2) / m
+
+
+@pytest.mark.parametrize("bits", [5, 10, 16])
+def test_qhull_is_proper_on_lattice_clusters(bits):
+    """Unperturbed, Qhull gives 120-650 flat tets on each of these (and non-conforming squares)."""
+    cells, pts = _lattice_cluster(bits, 2000, bits)
+    tz = tetrahedralize(pts, "qhull")
+    moved = dl.perturb_points(pts)
+    assert_valid_complex(moved, tz.tets, tz.hull_faces)
+    assert np.all(orientation(moved, tz.tets) > 0)
+    # Nothing inverted on the lattice: the perturbation is far below the cell. (The float64 centres are off the
+    # lattice by the rounding of x 1.2, so tets of coplanar cells can have a float64 volume of either sign.)
+    assert np.all(orientation(cells.astype(np.float64), tz.tets) >= 0)
+    assert len(np.unique(tz.tets)) == len(pts)
+    assert _volumes(pts, tz.tets).sum() == pytest.approx(ConvexHull(pts).volume, rel=1e-9)
+
+
+def test_qhull_retries_with_a_larger_perturbation(monkeypatch):
+    _, pts = _lattice_cluster(8, 1500, 1)
+    monkeypatch.setattr(dl, "QHULL_PERTURBATION_BITS", (80,))  # 2^-79: below float64 resolution, no effect
+    with pytest.raises(TopologyError, match="no proper tetrahedralization"):
+        tetrahedralize(pts, "qhull")
+    monkeypatch.setattr(dl, "QHULL_PERTURBATION_BITS", (80, 25))
+    tz = tetrahedralize(pts, "qhull")
+    assert_valid_complex(dl.perturb_points(pts, 25), tz.tets, tz.hull_faces)
+
+
+def test_proper_tetrahedralization_error_finds_each_defect():
+    from scipy.spatial import Delaunay
+
+    pts = np.random.default_rng(10).uniform(-1, 1, (60, 3))
+    tri = Delaunay(pts)
+    tets, nbr = tri.simplices.astype(np.int64), tri.neighbors.astype(np.int64)
+    neg = orientation(pts, tets) < 0
+    tets[neg], nbr[neg] = tets[neg][:, [1, 0, 2, 3]], nbr[neg][:, [1, 0, 2, 3]]
+    assert dl.proper_tetrahedralization_error(pts, tets, nbr) is None
+    flipped = tets.copy()
+    flipped[0] = flipped[0, [1, 0, 2, 3]]
+    assert "flat" in dl.proper_tetrahedralization_error(pts, flipped, nbr)
+    t, k = np.argwhere(nbr >= 0)[0]
+    one_sided = nbr.copy()
+    one_sided[nbr[t, k]][nbr[nbr[t, k]] == t] = -1
+    assert "mutual" in dl.proper_tetrahedralization_error(pts, tets, one_sided)
+    # Tet t claims a neighbour across face k that does not hold that face.
+    other = next(u for u in range(len(tets)) if u != t and t not in nbr[u] and u not in nbr[t])
+    wrong = nbr.copy()
+    wrong[t, k] = other
+    wrong[other, np.argmax(nbr[other] < 0) if (nbr[other] < 0).any() else 0] = t
+    assert dl.proper_tetrahedralization_error(pts, tets, wrong) is not None
+    assert "not a vertex" in dl.proper_tetrahedralization_error(pts, np.full((1, 4), -1), np.full((1, 4), -1))

@@ -345,3 +345,143 @@ def test_degenerate_lattice_with_random_signs(backend, seed):
     res = marching_tets_numpy(pts, tz.tets, s, None, tz.hull_faces)
     assert len(res.faces) > 0
     assert_closed_manifold(res.vertices, res.faces)
+
+
+# -----------------------------------------------------------------------------------------------------------
+# quantized (lattice) point sets: maximally cospherical, the case that broke the Qhull backend (issue 16)
+
+
+def lattice_points(bits: int, count: int, seed: int) -> np.ndarray:
+    """`count` distinct cell centres of a 2^bits lattice over [-1.2, 1.2]^3 (as the v2 container stores them)."""
+    m = 1 << bits
+    rng = np.random.default_rng(seed)
+    idx = rng.choice(m**3, size=min(count, m**3), replace=False)
+    cells = np.stack(np.unravel_index(idx, (m, m, m)), 1)
+    return ((2 * cells + 1 - m) * 1.2) / m
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    bits=st.integers(4, 7),
+    count=st.integers(4, 1500),
+    seed=st.integers(0, 2**32 - 1),
+    smooth=st.booleans(),
+    sh=st.sampled_from([-1, 1]),
+    backend=st.sampled_from(available_backends()),
+)
+def test_lattice_subsets_give_closed_manifolds(bits, count, seed, smooth, sh, backend):
+    pts = lattice_points(bits, count, seed)
+    rng = np.random.default_rng(seed)
+    if smooth:  # a sphere of random centre and radius: large connected surfaces
+        s = np.linalg.norm(pts - rng.uniform(-0.5, 0.5, 3), axis=1) - rng.uniform(0.2, 1.0)
+    else:  # independent signs: surfaces around single points, the hardest case for the complex's consistency
+        s = rng.normal(size=len(pts)) + rng.uniform(-1, 1)
+    c = rng.normal(size=(len(pts), num_coeffs(sh))) if sh >= 0 else None
+    tz = tetrahedralize(pts, backend)
+    res = marching_tets_numpy(pts, tz.tets, s, c, tz.hull_faces)
+    assert_closed_manifold(res.vertices, res.faces)
+
+
+def torus_lattice(seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """The issue-16 recipe: 1-3K random cells of a 2^5 lattice, s = signed distance to a torus (R 0.6, r 0.25)."""
+    pts = lattice_points(5, int(np.random.default_rng(seed).integers(1000, 3001)), seed)
+    ring = np.hypot(pts[:, 0], pts[:, 1]) - 0.6
+    return pts, np.hypot(ring, pts[:, 2]) - 0.25
+
+
+@pytest.mark.parametrize("backend", available_backends())
+def test_torus_on_a_lattice_is_closed(backend):
+    """Before the Qhull tie-break, 12-31 of 40 such draws gave doubled directed edges with Qhull (TetGen 0)."""
+    for seed in range(8):
+        pts, s = torus_lattice(seed)
+        tz = tetrahedralize(pts, backend)
+        res = marching_tets_numpy(pts, tz.tets, s, None, tz.hull_faces)
+        assert len(res.faces) > 0
+        assert_closed_manifold(res.vertices, res.faces)
+
+
+# -----------------------------------------------------------------------------------------------------------
+# the consistency check: a non-conforming tetrahedralization raises instead of giving a broken mesh
+
+
+def _two_cubes(conforming: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit cubes sharing the square x = 1, each split into 6 tets around its main diagonal (Kuhn).
+
+    The first cube's diagonal runs (0,0,0)-(1,1,1), so its side of the shared square is split along
+    (1,0,0)-(1,1,1); the second's runs (1,0,0)-(2,1,1) (conforming: the same split) or (1,1,0)-(2,0,1)
+    (mirrored in y: the square is split along (1,0,1)-(1,1,0) on that side -- a non-conforming complex).
+    """
+    g = np.array([[x, y, z] for x in range(3) for y in range(2) for z in range(2)], dtype=np.float64)
+    index = {tuple(p): i for i, p in enumerate(g.astype(int).tolist())}
+    tets = []
+    for x0, mirror in ((0, False), (1, not conforming)):
+        for perm in ([0, 1, 2], [0, 2, 1], [1, 0, 2], [1, 2, 0], [2, 0, 1], [2, 1, 0]):
+            path, p = [], [0, 0, 0]
+            path.append(tuple(p))
+            for axis in perm:
+                p = list(p)
+                p[axis] = 1
+                path.append(tuple(p))
+            corners = [(x0 + q[0], 1 - q[1] if mirror else q[1], q[2]) for q in path]
+            tets.append([index[c] for c in corners])
+    tets = np.array(tets, dtype=np.int64)
+    a, b, c, d = (g[tets[:, k]] for k in range(4))
+    neg = np.einsum("ij,ij->i", b - a, np.cross(c - a, d - a)) < 0
+    tets[neg] = tets[neg][:, [1, 0, 2, 3]]
+    return g, tets
+
+
+def _hull_faces_of(pts: np.ndarray, tets: np.ndarray) -> np.ndarray:
+    """Outward faces on the bounding box of `pts` that no other tet shares in the opposite orientation."""
+    from tetweave_codec.geometry.delaunay import TET_OUTWARD_FACES
+
+    def key(f):
+        return tuple(np.roll(f, -int(np.argmin(f))).tolist())
+
+    faces = tets[:, TET_OUTWARD_FACES].reshape(-1, 3)
+    keys = {key(f) for f in faces}
+    lo, hi = pts.min(0), pts.max(0)
+    on_box = [f for f in faces if np.any(np.all(pts[f] == lo, 0) | np.all(pts[f] == hi, 0))]
+    return np.array([f for f in on_box if key(f[[0, 2, 1]]) not in keys], dtype=np.int64)
+
+
+def test_conforming_cubes_give_a_closed_mesh():
+    pts, tets = _two_cubes(conforming=True)
+    s = np.full(len(pts), 1.0)
+    s[[4, 5, 6, 7]] = -1.0  # the four corners of the shared square are inside
+    res = marching_tets_numpy(pts, tets, s, None, _hull_faces_of(pts, tets))
+    assert_closed_manifold(res.vertices, res.faces)
+
+
+@pytest.mark.parametrize("broken", ["non-conforming", "overlapping"])
+def test_non_conforming_tetrahedralization_raises(broken):
+    from tetweave_codec.errors import TopologyError
+
+    pts, tets = _two_cubes(conforming=broken != "non-conforming")
+    if broken == "overlapping":  # one tet twice: its faces are claimed twice in the same orientation
+        tets = np.concatenate([tets, tets[:1]])
+    s = np.full(len(pts), 1.0)
+    s[[4, 6]] = -1.0  # (1,0,0) and (1,1,0): the surface crosses the shared square's diagonals
+    with pytest.raises(TopologyError):
+        marching_tets_numpy(pts, tets, s, None, _hull_faces_of(pts, tets))
+
+
+def test_check_manifold_accepts_closed_meshes_and_names_each_defect():
+    from tetweave_codec.errors import TopologyError
+    from tetweave_codec.geometry.marching_tets import check_manifold
+
+    tetra = np.array([[0, 2, 1], [0, 1, 3], [1, 2, 3], [0, 3, 2]], dtype=np.int64)  # closed, oriented
+    check_manifold(tetra, 4)
+    check_manifold(tetra[1:], 4, closed=False)  # open but edge-manifold: fine without the closed requirement
+    check_manifold(np.zeros((0, 3), np.int64), 0)
+    broken = {
+        "twin": tetra[1:],  # a hole
+        "twice": np.concatenate([tetra, tetra[:1]]),  # a face twice: its directed edges are used twice
+        "degenerate": np.concatenate([tetra, [[0, 0, 1]]]),
+    }
+    flipped = tetra.copy()
+    flipped[0] = flipped[0, [0, 2, 1]]  # inconsistent orientation: edges used twice in one direction
+    broken["flipped"] = flipped
+    for what, faces in broken.items():
+        with pytest.raises(TopologyError, match="twin" if what == "twin" else "twice|degenerate"):
+            check_manifold(faces, 4)

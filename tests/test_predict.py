@@ -111,3 +111,74 @@ def test_a_sphere_costs_far_fewer_s_bits_with_prediction(degree):
     a, b = unpack_v2(pack_v2(plain)), unpack_v2(pack_v2(predicted))
     assert np.array_equal(a.s_sym, b.s_sym)
     assert b.sizes["s"] < 0.75 * a.sizes["s"]  # measured 0.67
+
+
+def test_corrupted_residuals_give_out_of_range_symbols_not_a_crash():
+    # a corrupted stream can hold residuals far outside the symbol range: reconstruct must stay finite and return
+    # symbols that the caller's range check rejects, and the points before the bad residual must be unaffected
+    rng = np.random.default_rng(3)
+    cells = canonical_cells(rng.integers(0, 64, (300, 3)))
+    s_sym = rng.integers(-40, 40, len(cells))
+    r = predict.residuals(cells, s_sym)
+    r[100] = 2**62
+    out = predict.reconstruct(cells, r)
+    assert np.array_equal(out[:100], s_sym[:100])
+    assert out[100] >= Q.S_SYMBOL_LIMIT
+
+
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    n=st.integers(0, 160),
+    spread=st.sampled_from([3, 6, 300]),
+    per_cell=st.sampled_from([0.5, 2.0, 4.0, 50.0]),
+    cap=st.sampled_from([4, 40, 1 << 16]),
+    pad=st.sampled_from([1, 16]),
+    entries=st.sampled_from([64, 1 << 20]),
+)
+@settings(max_examples=60, deadline=None)
+def test_any_grid_tuning_gives_the_rules_neighbours(seed, n, spread, per_cell, cap, pad, entries):
+    # the grid's first level, row padding, batch size and candidate cap (beyond which the k-d tree answers) are
+    # speed choices only: whatever they are, the neighbours are the rule's, with a small bound rank that cuts
+    rng = np.random.default_rng(seed)
+    cells = canonical_cells(rng.integers(0, spread, (n, 3)))
+    names = ("QUERY_WIDTHS", "GRID_POINTS_PER_CELL", "GRID_MAX_CANDIDATES", "PAD_ROWS_ABOVE", "QUERY_ENTRIES")
+    saved = [getattr(predict, name) for name in names]
+    try:
+        for name, value in zip(names, ((4, 8, 16), per_cell, cap, pad, entries), strict=True):
+            setattr(predict, name, value)
+        idx, d2 = predict.causal_neighbors(cells)
+    finally:
+        for name, value in zip(names, saved, strict=True):
+            setattr(predict, name, value)
+    ref_idx, ref_d2 = brute_force_neighbors(cells, predict.K_NEIGHBORS, (4, 8, 16))
+    assert np.array_equal(idx, ref_idx) and np.array_equal(d2, ref_d2)
+
+
+def test_a_sparse_point_beside_a_dense_cluster_is_exact_and_bounded():
+    # hostile layout: a full 20^3 block (8000 points, more than the bound rank 4096) and points scattered around it
+    # whose earlier points are all far: the bound cuts their neighbour lists, and the grid hands the points whose
+    # block is too big to the k-d tree
+    block = np.stack(np.meshgrid(*[np.arange(20) + 100] * 3, indexing="ij"), -1).reshape(-1, 3)
+    rng = np.random.default_rng(5)
+    cells = canonical_cells(np.concatenate([block, rng.integers(60, 160, (300, 3))]))
+    idx, d2 = predict.causal_neighbors(cells)
+    saved = predict.GRID_MAX_CANDIDATES
+    try:
+        predict.GRID_MAX_CANDIDATES = 1000
+        small_cap = predict.causal_neighbors(cells)
+    finally:
+        predict.GRID_MAX_CANDIDATES = saved
+    assert np.array_equal(idx, small_cap[0]) and np.array_equal(d2, small_cap[1])
+    rows = np.concatenate([np.arange(0, len(cells), 97), np.flatnonzero((idx == -1).any(axis=1))[:40]])
+    for i in np.unique(rows):  # the rule, point by point, for a sample (the full brute force takes too long)
+        dd = ((cells - cells[i]) ** 2).sum(-1)
+        bound = np.sort(dd)[predict.QUERY_WIDTHS[-1] - 1]
+        valid = [j for j in range(i) if dd[j] < bound]
+        order = sorted(valid, key=lambda j: (dd[j], j))[: predict.K_NEIGHBORS]
+        assert idx[i, : len(order)].tolist() == order and (idx[i, len(order) :] == -1).all()
+    assert ((idx == -1).sum(axis=1) > 0)[predict.K_NEIGHBORS :].any()  # the bound did cut somewhere
+
+
+def test_cells_out_of_canonical_order_are_refused():
+    with pytest.raises(ValueError, match="canonical"):
+        predict.causal_neighbors(np.array([[0, 0, 1], [0, 0, 0]]))

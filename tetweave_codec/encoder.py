@@ -222,7 +222,8 @@ class Job:
 
 def pack_result(result: FitResult, scale: float, offset: np.ndarray) -> bytes:
     """The `.tw` bytes of a fit: version 1 or 2 after `result.finish.version`."""
-    from tetweave_codec.formats.common import FLAG_S_PREDICTED
+    from tetweave_codec.formats import octree
+    from tetweave_codec.formats.common import FLAG_OCTREE_CONTEXTS, FLAG_S_PREDICTED
     from tetweave_codec.formats.tw import TetWeaveFile, TetWeaveFileV2, backend_flags, pack, pack_v2
 
     fin = result.finish
@@ -237,6 +238,8 @@ def pack_result(result: FitResult, scale: float, offset: np.ndarray) -> bytes:
     q = fin.quantization
     steps = tuple(q.c_band_steps[: result.sh_degree + 1])
     shared["flags"] |= FLAG_S_PREDICTED
+    if octree.contexts_pay(fin.cells, q.position_bits):  # the new coding only where it saves bytes
+        shared["flags"] |= FLAG_OCTREE_CONTEXTS
     return pack_v2(
         TetWeaveFileV2(
             cells=fin.cells,

@@ -13,6 +13,11 @@ class ContainerError(TetweaveError):
     """A `.tw` container is malformed, truncated, corrupted or of an unsupported version."""
 
 
+class TopologyError(TetweaveError):
+    """An internal consistency check failed: a tetrahedralization that is not a proper one (overlapping or
+    non-conforming tets) reached marching tets, which would otherwise return a non-manifold mesh."""
+
+
 def error_line(exc: BaseException) -> str:
     """The one-line message users see for `exc`: what the CLI prints after "tetweave: error: " and what a batch
     records for a failed file. TetweaveError: its message; OSError: reason and file; anything else is a bug of

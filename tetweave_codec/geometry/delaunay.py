@@ -7,7 +7,7 @@ Backends, measured on the 2-core development machine for 64K float16-rounded poi
 backend                    64K points   license         notes
 =========================  ===========  ==============  ==========================================
 TetGen 1.6 (``tetgenpy``)  0.29-0.36 s  AGPL-3.0        switches ``Qz``; exact predicates
-scipy Qhull                1.9-2.3 s    BSD (Qhull)     ``Qbb Qc Qz Q12 Qt``; flat tets, see below
+scipy Qhull                1.9-2.3 s    BSD (Qhull)     ``Qbb Qc Qz Q12 Qt`` on perturbed points, below
 =========================  ===========  ==============  ==========================================
 
 License consequence: TetGen is AGPL-3.0, so tetweave as distributed (depending on ``tetgenpy``) is
@@ -25,12 +25,31 @@ Guarantees of `delaunay` / `tetrahedralize`:
 
 * tets index the caller's point array (TetGen silently drops exact duplicate points and renumbers the rest; we
   map back, and of exactly coincident points only the first is referenced);
+* a proper tetrahedralization of the distinct points: every distinct point is a vertex, each triangle is shared
+  by at most two tets, seen in opposite orientations, and the unpaired triangles are the convex hull's;
 * tets are positively oriented, ``det[p1 - p0, p2 - p0, p3 - p0] > 0``, decided with an exact predicate where
-  float64 is not certain. Qhull may emit exactly flat tets for cospherical points; these get the orientation
-  their neighbours imply, so the complex stays consistently oriented (which is what marching tets needs);
+  float64 is not certain (for Qhull: the sign on the perturbed points, below; a tet whose corners are coplanar
+  in true coordinates keeps that orientation, consistent with its neighbours);
 * deterministic (both libraries are deterministic for the same input and options);
 * fewer than 4 points, or points that span no volume (all (nearly) coplanar or collinear), give no tets
   (shape (0, 4)).
+
+Qhull tie-break. TetGen decides every predicate exactly with a symbolic perturbation, so cospherical and
+coplanar sets (lattice points: every cube of 8 cells is cospherical) come out as a proper tetrahedralization.
+Qhull computes in floating point and merges near-degenerate facets of the lifted hull; scipy's mandatory ``Qt``
+then triangulates each merged facet on its own, which emits flat tets and, where two cospherical cells share a
+square, splits that square along different diagonals on its two sides (a non-conforming complex: marching
+tets then returns meshes with unpaired and doubled edges -- measured on 12-31 of 40 lattice sets of 1-3K
+points). So Qhull triangulates *perturbed* points: each coordinate moves by less than 2^(e - 25), with 2^e
+the power of two just above the largest coordinate magnitude (in the normalized frame 2^-24 = 6e-8, 1.6e-3 of
+the finest v2 grid cell), in a direction given by a fixed hash of the point's coordinate bits (so it depends
+neither on the point order nor on the platform, and coincident points stay coincident). That separates every
+degenerate configuration by far more than Qhull's roundoff (measured: lattice clusters of 3K points at 5-16
+position bits are proper at perturbations 2^-16..2^-28, not always at 2^-32), while changing no choice between
+configurations that are not degenerate except for tets whose volume is within ~3 * 2^-24 * edge^2 of zero.
+The result is checked (`proper_tetrahedralization_error`); if Qhull ever misses, the perturbation is retried
+16x and 256x larger (`QHULL_PERTURBATION_BITS`), and a `TopologyError` is raised if none is proper.
+formats/README.md ("Decoding", step 2) specifies the perturbation for other decoders.
 """
 
 from __future__ import annotations
@@ -38,6 +57,8 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
+
+from tetweave_codec.errors import TopologyError
 
 BACKENDS = ("tetgen", "qhull")
 
@@ -56,6 +77,17 @@ _FLATNESS_RATIO = 1e-6
 # float64 orientation determinants whose magnitude exceeds this multiple of their permanent have a certain
 # sign (Shewchuk's orient3d bound is ~7.8e-16; we keep a wide margin and decide the rest exactly).
 _ORIENT_ERRBOUND = 1e-14
+
+# Qhull tie-break: the perturbation of each coordinate is below 2^(e - k) for the first k of these that gives a
+# proper tetrahedralization (2^e: the power of two just above the largest coordinate magnitude).
+QHULL_PERTURBATION_BITS = (25, 21, 17)
+# The hash gives each axis a 21-bit integer u in [0, 2^21), used as (u - 2^20 + 0.5) / 2^20 in (-1, 1).
+_HASH_BITS_PER_AXIS = 21
+_SPLITMIX_GAMMA = (
+    0x9E3779B97F4A7C15  # splitmix64 (Steele, Lea, Flood 2014), the finalizer of java.util.SplittableRandom
+)
+_SPLITMIX_MUL1 = 0xBF58476D1CE4E5B9
+_SPLITMIX_MUL2 = 0x94D049BB133111EB
 
 
 class Tetrahedralization(NamedTuple):
@@ -177,59 +209,122 @@ def _match_kept_points(pts: np.ndarray, kept: np.ndarray) -> np.ndarray:
 
 
 def _qhull(pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    from scipy.spatial import Delaunay, QhullError
+    """Qhull on perturbed points (module docstring), the first proper result of `QHULL_PERTURBATION_BITS`."""
+    from scipy.spatial import QhullError
 
-    try:
-        tri = Delaunay(pts)
-    except QhullError:
-        return np.zeros((0, 4), np.int64), np.zeros((0, 3), np.int64)
+    failures = []
+    for bits in QHULL_PERTURBATION_BITS:
+        perturbed = perturb_points(pts, bits)
+        try:
+            tets, neighbors = _qhull_tets(pts, perturbed)
+        except QhullError as exc:  # a precision error: retried with a larger perturbation
+            failures.append(f"Qhull failed ({str(exc).splitlines()[0][:80]})")
+            continue
+        problem = proper_tetrahedralization_error(perturbed, tets, neighbors)
+        if problem is None:
+            # Hull faces straight from the tets: exactly the faces marching tets sees.
+            t_idx, k_idx = np.nonzero(neighbors < 0)
+            hull = np.take_along_axis(tets[t_idx], TET_OUTWARD_FACES[k_idx], axis=1)
+            return np.ascontiguousarray(tets), np.ascontiguousarray(hull)
+        failures.append(problem)
+    raise TopologyError(f"Qhull gave no proper tetrahedralization of {len(pts)} points: {failures[-1]}")
+
+
+def _qhull_tets(pts: np.ndarray, perturbed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Qhull's tets of `perturbed`, oriented positively there (exact), and its neighbour table (-1: hull face).
+
+    Points Qhull leaves out (its "coplanar" points) must be exact duplicates of a vertex, and tets refer to the
+    first occurrence of a coordinate triple; else the result has -1 in `tets` (rejected as improper).
+    """
+    from scipy.spatial import Delaunay
+
+    tri = Delaunay(perturbed)
     tets = tri.simplices.astype(np.int64)
     neighbors = tri.neighbors.astype(np.int64)
     if len(tri.coplanar):
-        # Qhull keeps an arbitrary one of several coincident points; refer to the first, as with TetGen.
         keys = pts.view(np.dtype((np.void, 24))).ravel()
         _, first, inverse = np.unique(keys, return_index=True, return_inverse=True)
-        tets = first[inverse.reshape(-1)][tets]
-    signs = orientation(pts, tets)
-    flip = signs < 0
+        first_of = first[inverse.reshape(-1)]
+        left_out, nearest = tri.coplanar[:, 0], tri.coplanar[:, 2]
+        if np.any(first_of[left_out] != first_of[nearest]):
+            return np.full((1, 4), -1, np.int64), np.full((1, 4), -1, np.int64)  # a distinct point was dropped
+        tets = first_of[tets]
+    flip = orientation(perturbed, tets) < 0
     tets[flip] = tets[flip][:, [1, 0, 2, 3]]
     neighbors[flip] = neighbors[flip][:, [1, 0, 2, 3]]
-    flat = np.flatnonzero(signs == 0)
-    if len(flat):
-        _orient_flat_tets(tets, neighbors, flat)
-    # Hull faces straight from the (now consistently oriented) tets: exactly the faces marching tets sees.
-    t_idx, k_idx = np.nonzero(neighbors < 0)
-    hull = np.take_along_axis(tets[t_idx], TET_OUTWARD_FACES[k_idx], axis=1)
-    return np.ascontiguousarray(tets), np.ascontiguousarray(hull)
+    return tets, neighbors
 
 
-def _orient_flat_tets(tets: np.ndarray, neighbors: np.ndarray, flat: np.ndarray) -> None:
-    """Orient exactly flat tets in place so that each shared face gets opposite orientations from its tets."""
-    fixed = np.ones(len(tets), dtype=bool)
-    fixed[flat] = False
-    pending = flat.tolist()
-    while pending:
-        still = []
-        for t in pending:
-            for k in range(4):
-                u = int(neighbors[t, k])
-                if u < 0 or not fixed[u]:
-                    continue
-                apex = tets[t, k]
-                m = int(np.flatnonzero(neighbors[u] == t)[0])
-                x, y, z = tets[u, TET_OUTWARD_FACES[m]]
-                # u sees the shared face as (x, y, z) outward; t must see (x, z, y): t = (apex, x, z, y).
-                order = [apex, x, z, y]
-                old = tets[t].tolist()
-                tets[t] = order
-                neighbors[t] = [neighbors[t, old.index(v)] for v in order]
-                fixed[t] = True
-                break
-            else:
-                still.append(t)
-        if len(still) == len(pending):  # isolated flat pocket: nothing to align with, keep as is
-            break
-        pending = still
+def perturb_points(points: np.ndarray, bits: int = QHULL_PERTURBATION_BITS[0]) -> np.ndarray:
+    """The Qhull tie-break: points moved by a fixed hash of their coordinates (formats/README.md, Decoding).
+
+    Args:
+        points: (N, 3) float64, finite.
+        bits: k; every coordinate moves by less than 2^(e - k), with 2^(e - 1) <= max |coordinate| < 2^e.
+    Returns:
+        (N, 3) float64: ``p + u * 2^(e - k - 20)`` (one rounding), u in (-2^20, 2^20) per axis from the hash.
+    """
+    pts = np.ascontiguousarray(points, dtype=np.float64)
+    if not len(pts):
+        return pts.copy()
+    _, e = np.frexp(np.abs(pts).max())
+    h = _coordinate_hash(pts)
+    mask = np.uint64((1 << _HASH_BITS_PER_AXIS) - 1)
+    u = np.stack([(h >> np.uint64(_HASH_BITS_PER_AXIS * a)) & mask for a in range(3)], 1).astype(np.float64)
+    half = float(1 << (_HASH_BITS_PER_AXIS - 1))
+    return pts + (u - (half - 0.5)) * np.ldexp(1.0, int(e) - bits - (_HASH_BITS_PER_AXIS - 1))
+
+
+def _coordinate_hash(pts: np.ndarray) -> np.ndarray:
+    """(N,) uint64: splitmix64(bits(x) ^ splitmix64(bits(y) ^ splitmix64(bits(z)))), bits of ``coordinate + 0.0``."""
+    raw = (pts + 0.0).view(np.uint64)  # + 0.0 turns -0.0 into +0.0: equal coordinates, equal bits
+    h = _splitmix64(raw[:, 2])
+    h = _splitmix64(raw[:, 1] ^ h)
+    return _splitmix64(raw[:, 0] ^ h)
+
+
+def _splitmix64(z: np.ndarray) -> np.ndarray:
+    """splitmix64's output function on uint64 arrays (arithmetic modulo 2^64)."""
+    z = z + np.uint64(_SPLITMIX_GAMMA)
+    z = (z ^ (z >> np.uint64(30))) * np.uint64(_SPLITMIX_MUL1)
+    z = (z ^ (z >> np.uint64(27))) * np.uint64(_SPLITMIX_MUL2)
+    return z ^ (z >> np.uint64(31))
+
+
+def proper_tetrahedralization_error(points: np.ndarray, tets: np.ndarray, neighbors: np.ndarray) -> str | None:
+    """None if `tets` with its neighbour table is a proper, consistently oriented tetrahedralization, else why not.
+
+    Args:
+        points: (N, 3) float64, the coordinates the tets are oriented in.
+        tets: (T, 4) int64. neighbors: (T, 4) int64, neighbors[t, k] the tet across the face opposite corner k,
+            -1 on the boundary (scipy's convention).
+    Checks (vectorized, O(T)): every tet has positive exact orientation; each neighbour relation is mutual; the
+    two tets see their shared face with opposite orientations (so they lie on its two sides, not overlapping);
+    the face opposite corner k of t is the same vertex triple in the neighbour (a conforming complex).
+    """
+    if len(tets) == 0:
+        return None
+    if tets.min() < 0:
+        return "a distinct point is not a vertex"
+    if not np.all(orientation(points, tets) > 0):
+        return "a tet is flat"
+    t_idx, k_idx = np.nonzero(neighbors >= 0)
+    u = neighbors[t_idx, k_idx]
+    back = neighbors[u] == t_idx[:, None]  # (M, 4): which face of u points back to t
+    if not np.all(back.sum(1) == 1):
+        return "a neighbour relation is not mutual"
+    m_idx = np.argmax(back, axis=1)
+    mine = _rotate_min_first(np.take_along_axis(tets[t_idx], TET_OUTWARD_FACES[k_idx], axis=1))
+    theirs = _rotate_min_first(np.take_along_axis(tets[u], TET_OUTWARD_FACES[m_idx], axis=1))
+    if not np.array_equal(mine, theirs[:, [0, 2, 1]]):
+        return "two neighbouring tets do not share their face in opposite orientations (non-conforming)"
+    return None
+
+
+def _rotate_min_first(tris: np.ndarray) -> np.ndarray:
+    """(M, 3) oriented triangles rotated (cyclic order kept) so that the smallest index comes first."""
+    r = np.argmin(tris, axis=1)
+    return np.take_along_axis(tris, (r[:, None] + np.arange(3)) % 3, axis=1)
 
 
 def _orient_hull_faces(pts: np.ndarray, hull: np.ndarray) -> np.ndarray:

@@ -26,6 +26,12 @@ Two implementations share the tables and the vertex ordering (vertices sorted by
 * `marching_tets`: torch, differentiable w.r.t. points, s and c; topology under no_grad with 1-D int64 edge
   keys (torch.unique on keys; ``unique(dim=0)`` on edge pairs is 10-18x slower).
 * `marching_tets_numpy`: numpy float64, no autograd; what the decoder uses (deterministic, no BLAS).
+
+The output is a closed (with ``hull_faces``) 2-manifold only if the tets form a proper tetrahedralization (each
+triangle shared by at most two tets, in opposite orientations; `delaunay` guarantees it). `marching_tets_numpy`
+checks its own output -- every directed edge used once, and with ``hull_faces`` by exactly one opposite edge --
+and raises `TopologyError` rather than return a broken mesh from a non-conforming input (one sort of 3F
+integer keys).
 """
 
 from __future__ import annotations
@@ -34,6 +40,7 @@ from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 
+from tetweave_codec.errors import TopologyError
 from tetweave_codec.geometry.sh import degree_from_num_coeffs, sh_basis_terms, sh_parity
 
 if TYPE_CHECKING:  # torch is imported lazily: the numpy decoder path must not pay for it
@@ -242,12 +249,42 @@ def marching_tets_numpy(
             edges = np.concatenate([edges, np.stack([cap_points, cap_points], 1)], 0)
             faces = np.concatenate([faces, cap_faces], 0)
             face_tets = np.concatenate([face_tets, np.full(len(cap_faces), -1, dtype=np.int64)])
+    check_manifold(faces, len(vertices), closed=hull_faces is not None)
     return MarchingTetsResult(
         np.ascontiguousarray(vertices),
         np.ascontiguousarray(faces, dtype=np.int64),
         np.ascontiguousarray(edges, dtype=np.int64),
         np.ascontiguousarray(face_tets, dtype=np.int64),
     )
+
+
+def check_manifold(faces: np.ndarray, num_vertices: int, closed: bool = True) -> None:
+    """Raise `TopologyError` unless every directed edge of `faces` is used once (and, if `closed`, has its twin).
+
+    Args:
+        faces: (F, 3) int64 triangles into `num_vertices` vertices.
+        closed: also require every edge to be shared by exactly two faces in opposite directions (no boundary).
+    That is: edge-manifold and consistently oriented (closed: watertight); marching tets on a proper
+    tetrahedralization cannot produce anything else, so a failure means its input was not one.
+    """
+    if not len(faces):
+        return
+    tail = faces.ravel()
+    head = faces[:, [1, 2, 0]].ravel()
+    if np.any(tail == head):
+        raise TopologyError("marching tets produced a degenerate triangle: the tetrahedralization is not proper")
+    # One sort: each directed edge as (undirected key << 1) | direction. Closed and oriented means every
+    # undirected key appears exactly twice, once per direction: pairs (2k, 2k + 1) of the sorted array.
+    forward = tail * num_vertices + head
+    backward = head * num_vertices + tail
+    packed = (np.minimum(forward, backward) << 1) | (forward > backward)
+    packed.sort()
+    if np.any(packed[1:] == packed[:-1]):
+        raise TopologyError("marching tets used a directed edge twice: the tetrahedralization is not proper")
+    if closed:
+        first, second = packed[0::2], packed[1::2]
+        if len(first) != len(second) or not np.array_equal(first | 1, second) or np.any(first & 1):
+            raise TopologyError("marching tets left an edge without its twin: the tetrahedralization is not proper")
 
 
 def _unique_inverse(keys: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:

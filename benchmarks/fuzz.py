@@ -1,0 +1,553 @@
+"""Structure-aware fuzzing of the version-2 decoder: every case must end in a ContainerError or a closed 2-manifold.
+
+Seed files are valid version-2 files: analytic point sets written with `quantize_file` + `pack_v2` (lattice
+cells in a shell around a torus or a sphere, 6-12 position bits, SH degrees -1..3, both Delaunay flags, s
+predicted or not, octree context-coded (flags bit 2) or not; plus the edge cases N = 0 and N = 1..5) and any
+real files given with ``--files``. Each case applies 1-3 mutations that know the layout (header fields, the
+three section sizes, the sections' bytes) and then, in 95 % of cases, rewrites the section sizes and recomputes
+the CRC so that the mutation reaches the parsers behind the checksum:
+
+* ``field``: one header field (flags, SH degree, position bits, N, scale, offset, s step, a c step) set to an
+  extreme or boundary value of its type (0, 1, max, max + 1, NaN, inf, subnormal, the value +-1, ...) or to
+  a plausible one (the value times 0.25..4); ``backend``: the Delaunay flag toggled (a valid file);
+* ``sizes``: a section size field set to an extreme value without moving any byte (the file disagrees);
+* ``boundary``: a boundary between two sections moved by 1..64 bytes (or to an extreme), total unchanged;
+* ``splice``: a section replaced by the same section of another seed file;
+* ``truncate`` / ``extend``: a section shortened or lengthened (zeros, random bytes or a copy of itself);
+* ``flip``: 1-16 bit flips inside the sections; ``models``: model bytes (the starts of the sections) set to
+  0, 1, 255 or random values; ``random``: one or all sections replaced by random bytes;
+* ``file``: the whole file cut or extended (sizes and CRC left alone).
+
+Every case decodes in a worker process (memory capped at ``--memory-gb``) with a time limit, through
+`decode_detailed` with the file's own backend flag; a decoded mesh must pass `marching_tets.check_manifold`
+(closed) and manifold3d. Outcomes: ``rejected`` (ContainerError), ``closed`` (a non-empty closed 2-manifold),
+``empty`` (no surface: one sign only, or points spanning no volume), and the failures ``non_manifold``,
+``error`` (any other exception, TopologyError included), ``timeout`` and ``crash`` (the worker died).
+Case i uses the generator ``numpy.random.default_rng([seed, i])``, so ``--only i`` replays one case.
+
+    python -m tetweave_codec.benchmarks.fuzz --cases 10000
+    python -m tetweave_codec.benchmarks.fuzz --cases 500 --files a.tw b.tw --out fuzz.md
+    python -m tetweave_codec.benchmarks.fuzz --only 1234 -v
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import multiprocessing as mp
+import struct
+import sys
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from tetweave_codec.formats import quantize as Q
+from tetweave_codec.formats.common import CHECKSUM_SIZE, FLAG_OCTREE_CONTEXTS, FLAG_QHULL, FLAG_S_PREDICTED, seal
+from tetweave_codec.formats.tw2 import FIXED_SIZE, MAX_POINTS, header_size, pack_v2, quantize_file
+
+FAILURES = ("non_manifold", "error", "timeout", "crash")
+OUTCOMES = ("rejected", "closed", "empty", *FAILURES)
+NO_RESEAL_SHARE = 0.05  # cases whose sizes and CRC are left as the mutations made them
+MAX_MUTATIONS = 3
+DEFAULT_TIME_LIMIT = 60.0  # seconds per case; a seed file decodes in well under a second
+DEFAULT_MEMORY_GB = 6.0
+
+# v2 header fields: name -> (offset, struct format); the c steps follow at FIXED_SIZE + 4 l.
+FIELDS = {
+    "flags": (10, "<B"),
+    "sh_degree": (11, "<b"),
+    "position_bits": (12, "<B"),
+    "num_points": (13, "<I"),
+    "scale": (17, "<d"),
+    "offset_x": (25, "<d"),
+    "offset_y": (33, "<d"),
+    "offset_z": (41, "<d"),
+    "s_step": (49, "<f"),
+}
+EXTREMES = {
+    "<B": [0, 1, 2, 3, 4, 5, 6, 7, 15, 16, 17, 127, 128, 254, 255],
+    "<b": [-128, -2, -1, 0, 1, 2, 3, 4, 5, 127],
+    "<I": [0, 1, 2, 3, 4, 7, 8, 255, 256, MAX_POINTS - 1, MAX_POINTS, MAX_POINTS + 1, 2**31, 2**32 - 1],
+    "<d": [0.0, -0.0, 1.0, -1.0, 5e-324, 2.2e-308, 1e308, -1e308, float("inf"), -float("inf"), float("nan")],
+    "<f": [0.0, -0.0, 1e-45, 1.1754944e-38, 1.1754942e-38, 1.0, -1.0, 3.4e38, float("inf"), float("nan")],
+}
+
+
+# -----------------------------------------------------------------------------------------------------------
+# seed files
+
+
+def _shell_cells(rng: np.random.Generator, bits: int, count: int, shape: str) -> tuple[np.ndarray, np.ndarray]:
+    """Up to `count` distinct lattice cells near a torus or sphere and their signed distances (normalized frame)."""
+    m = 1 << bits
+    cells = np.unique(rng.integers(0, m, (count * 8, 3)), axis=0)
+    pts = Q.dequantize_positions(cells, bits)
+    if shape == "torus":
+        sdf = np.hypot(np.hypot(pts[:, 0], pts[:, 1]) - 0.55, pts[:, 2]) - 0.25
+    else:
+        sdf = np.linalg.norm(pts - rng.uniform(-0.2, 0.2, 3), axis=1) - rng.uniform(0.3, 0.8)
+    near = np.argsort(np.abs(sdf), kind="stable")[:count]
+    return cells[near], sdf[near]
+
+
+def seed_files(seed: int = 0, max_points: int = 3000) -> list[tuple[str, bytes]]:
+    """Valid version-2 files (name, bytes) covering every header variant the writer produces; see module doc."""
+    rng = np.random.default_rng([seed, 2**31])
+    files = []
+    variants = [(bits, degree) for bits in (6, 8, 10, 12) for degree in (-1, 0, 1, 2, 3)]
+    for k, (bits, degree) in enumerate(variants):
+        count = int(rng.integers(max(8, max_points // 10), max_points + 1))
+        cells, sdf = _shell_cells(rng, bits, count, "torus" if k % 2 else "sphere")
+        q = (degree + 1) ** 2
+        c = rng.normal(scale=0.4, size=(len(cells), q))
+        flags = (FLAG_QHULL if k % 3 == 1 else 0) | (FLAG_S_PREDICTED if k % 4 != 3 else 0)
+        flags |= FLAG_OCTREE_CONTEXTS if k % 5 in (1, 2, 4) else 0  # context-coded positions in 3 of 5
+        f, _ = quantize_file(
+            Q.dequantize_positions(cells, bits), sdf + rng.normal(scale=2e-3, size=len(sdf)), c, degree,
+            position_bits=bits, s_step=float(rng.choice([2e-4, 5e-4, 1e-3])),
+            c_band_steps=[float(rng.choice([0.1, 0.2, 0.3]))] * (degree + 1),
+            scale=float(rng.uniform(0.1, 10)), offset=rng.normal(size=3), flags=flags,
+        )  # fmt: skip
+        ctx = "-ctx" if flags & FLAG_OCTREE_CONTEXTS else ""
+        name = f"b{bits}-d{degree}-{'qhull' if flags & FLAG_QHULL else 'tetgen'}{ctx}-n{f.num_points}"
+        files.append((name, pack_v2(f)))
+    for n in (0, 1, 2, 3, 4, 5):
+        cells = rng.choice(2**18, size=n, replace=False)
+        cells = np.stack(np.unravel_index(cells, (64, 64, 64)), 1)
+        pts = Q.dequantize_positions(cells, 6)
+        f, _ = quantize_file(
+            pts, rng.normal(size=n), None, -1, position_bits=6, s_step=1e-3, c_band_steps=[],
+            flags=FLAG_S_PREDICTED | (FLAG_QHULL if n % 2 else 0),
+        )  # fmt: skip
+        files.append((f"tiny-n{n}", pack_v2(f)))
+    return files
+
+
+# -----------------------------------------------------------------------------------------------------------
+# layout-aware mutations
+
+
+@dataclass
+class Parts:
+    """A version-2 file cut along its layout: header (H bytes, size fields included) and the three sections."""
+
+    header: bytearray
+    sections: list[bytes]
+    keep_sizes: bool = False  # a mutation set the size fields on purpose: `assemble` must not rewrite them
+    tail: bytes | None = None  # a mutation replaced the whole file's end (see `_m_file`)
+    applied: list[str] = field(default_factory=list)
+
+
+def split(data: bytes) -> Parts:
+    """Cut a valid version-2 file into its parts."""
+    degree = struct.unpack_from("<b", data, 11)[0]
+    h = header_size(degree)
+    sizes = struct.unpack_from("<3I", data, h - 12)
+    starts = np.cumsum((h, *sizes)).tolist()
+    return Parts(bytearray(data[:h]), [data[starts[i] : starts[i + 1]] for i in range(3)])
+
+
+def assemble(parts: Parts, reseal: bool = True) -> bytes:
+    """The file's bytes: size fields rewritten (unless a mutation set them) and the CRC recomputed if `reseal`."""
+    header = bytearray(parts.header)
+    if not parts.keep_sizes and len(header) >= 12:
+        struct.pack_into("<3I", header, len(header) - 12, *(len(s) for s in parts.sections))
+    body = bytes(header) + b"".join(parts.sections)
+    data = seal(body) if reseal else body + b"\0" * CHECKSUM_SIZE
+    if parts.tail is not None:
+        cut = int.from_bytes(parts.tail[:4], "little") % (len(data) + 1)
+        data = data[:cut] + parts.tail[4:]
+    return data
+
+
+def _field_value(rng: np.random.Generator, fmt: str, old):
+    choices = list(EXTREMES[fmt])
+    if fmt in ("<B", "<b", "<I"):
+        lo, hi = {"<B": (0, 255), "<b": (-128, 127), "<I": (0, 2**32 - 1)}[fmt]
+        choices += [min(max(old + d, lo), hi) for d in (-1, 1)] + [int(rng.integers(lo, hi, endpoint=True))]
+    else:
+        choices += [old * 2.0 ** int(rng.integers(-40, 40)), -old, float(rng.normal())]
+        choices += [old * float(rng.uniform(0.25, 4))] * 4  # plausible values: files that still decode
+    return choices[int(rng.integers(len(choices)))]
+
+
+def _header_fields(header: bytearray) -> dict[str, tuple[int, str]]:
+    """The seed header's fields: name -> (offset, struct format), the c steps of its SH bands included."""
+    bands = (len(header) - FIXED_SIZE - 12) // 4
+    return {**FIELDS, **{f"c_step_{band}": (FIXED_SIZE + 4 * band, "<f") for band in range(bands)}}
+
+
+# Mutations: (rng, parts, seed files' bytes) -> a short description; each edits `parts` in place.
+
+
+def _m_field(rng, parts, others):
+    fields = _header_fields(parts.header)
+    name = list(fields)[int(rng.integers(len(fields)))]
+    offset, fmt = fields[name]
+    (old,) = struct.unpack_from(fmt, parts.header, offset)
+    value = _field_value(rng, fmt, old)
+    if fmt == "<f":
+        with np.errstate(over="ignore"):
+            value = float(np.float32(value))  # beyond float32: inf, as a writer rounding it would store
+    struct.pack_into(fmt, parts.header, offset, value)
+    return f"field:{name}={value!r}"
+
+
+def _m_backend(rng, parts, others):
+    parts.header[10] ^= FLAG_QHULL  # a valid file triangulated by the other backend
+    return "backend"
+
+
+def _m_sizes(rng, parts, others):
+    k = int(rng.integers(3))
+    (old,) = struct.unpack_from("<I", parts.header, len(parts.header) - 12 + 4 * k)
+    value = _field_value(rng, "<I", old)
+    struct.pack_into("<3I", parts.header, len(parts.header) - 12, *(len(s) for s in parts.sections))
+    struct.pack_into("<I", parts.header, len(parts.header) - 12 + 4 * k, value)
+    parts.keep_sizes = True
+    return f"sizes:{'PSC'[k]}={value}"
+
+
+def _m_boundary(rng, parts, others):
+    joined = b"".join(parts.sections)
+    sizes = [len(s) for s in parts.sections]
+    k = int(rng.integers(2))  # boundary between section k and k + 1
+    move = int(rng.integers(1, 65)) * (1 if rng.random() < 0.5 else -1)
+    if rng.random() < 0.2:
+        move = -sizes[k] if rng.random() < 0.5 else sizes[k + 1]  # to an extreme: one section empty
+    move = max(-sizes[k], min(sizes[k + 1], move))
+    sizes[k] += move
+    sizes[k + 1] -= move
+    starts = np.cumsum([0, *sizes]).tolist()
+    parts.sections = [joined[starts[i] : starts[i + 1]] for i in range(3)]
+    return f"boundary:{k}{move:+d}"
+
+
+def _m_splice(rng, parts, others):
+    k = int(rng.integers(3))
+    donor = split(others[int(rng.integers(len(others)))])
+    parts.sections[k] = donor.sections[k]
+    return f"splice:{k}"
+
+
+def _m_truncate(rng, parts, others):
+    k = int(rng.integers(3))
+    sec = parts.sections[k]
+    cut = int(rng.integers(0, len(sec) + 1)) if rng.random() < 0.3 else min(len(sec), int(rng.integers(1, 9)))
+    parts.sections[k] = sec[: len(sec) - cut] if rng.random() < 0.8 else sec[cut:]
+    return f"truncate:{k}-{cut}"
+
+
+def _m_extend(rng, parts, others):
+    k = int(rng.integers(3))
+    extra = int(rng.integers(1, 257))
+    kind = int(rng.integers(3))
+    add = (bytes(extra), rng.bytes(extra), (parts.sections[k] * 2)[:extra])[kind]
+    parts.sections[k] = parts.sections[k] + add
+    return f"extend:{k}+{len(add)}{'zrc'[kind]}"
+
+
+def _m_flip(rng, parts, others):
+    joined = bytearray(b"".join(parts.sections))
+    if not joined:
+        return "flip:none"
+    flips = int(rng.integers(1, 17))
+    for _ in range(flips):
+        bit = int(rng.integers(len(joined) * 8))
+        joined[bit // 8] ^= 1 << (bit % 8)
+    sizes = np.cumsum([0, *(len(s) for s in parts.sections)]).tolist()
+    parts.sections = [bytes(joined[sizes[i] : sizes[i + 1]]) for i in range(3)]
+    return f"flip:{flips}"
+
+
+def _m_models(rng, parts, others):
+    k = int(rng.integers(3))
+    sec = bytearray(parts.sections[k])
+    if not sec:
+        return "models:none"
+    for _ in range(int(rng.integers(1, 5))):
+        i = int(rng.integers(min(len(sec), 140)))  # model bytes sit at the start of each section
+        sec[i] = int(rng.choice([0, 1, 2, 7, 8, 128, 248, 249, 254, 255, int(rng.integers(256))]))
+    parts.sections[k] = bytes(sec)
+    return f"models:{k}"
+
+
+def _m_random(rng, parts, others):
+    which = range(3) if rng.random() < 0.3 else [int(rng.integers(3))]
+    for k in which:
+        length = len(parts.sections[k]) if rng.random() < 0.7 else int(rng.integers(0, 4096))
+        parts.sections[k] = rng.bytes(length)
+    return f"random:{list(which)}"
+
+
+def _m_file(rng, parts, others):
+    cut = int(rng.integers(0, 2**32))
+    extra = rng.bytes(int(rng.integers(0, 16))) if rng.random() < 0.5 else b""
+    parts.tail = cut.to_bytes(4, "little") + extra
+    return "file"
+
+
+MUTATIONS = {
+    "field": (_m_field, 4.0),
+    "backend": (_m_backend, 1.5),
+    "sizes": (_m_sizes, 1.0),
+    "boundary": (_m_boundary, 2.0),
+    "splice": (_m_splice, 1.5),
+    "truncate": (_m_truncate, 1.5),
+    "extend": (_m_extend, 1.5),
+    "flip": (_m_flip, 3.0),
+    "models": (_m_models, 2.0),
+    "random": (_m_random, 1.0),
+    "file": (_m_file, 0.5),
+}
+
+
+def mutate(rng: np.random.Generator, seeds: list[bytes]) -> tuple[int, bytes, list[str]]:
+    """One case: (index of the seed file, mutated bytes, description of the mutations applied)."""
+    index = int(rng.integers(len(seeds)))
+    parts = split(seeds[index])
+    names = list(MUTATIONS)
+    weights = np.array([MUTATIONS[n][1] for n in names])
+    for _ in range(int(rng.integers(1, MAX_MUTATIONS + 1))):
+        name = names[int(rng.choice(len(names), p=weights / weights.sum()))]
+        parts.applied.append(MUTATIONS[name][0](rng, parts, seeds))
+    reseal = rng.random() >= NO_RESEAL_SHARE
+    if not reseal:
+        parts.applied.append("no-reseal")
+    return index, assemble(parts, reseal), parts.applied
+
+
+# -----------------------------------------------------------------------------------------------------------
+# one case, in a worker
+
+
+def classify(data: bytes) -> tuple[str, str]:
+    """Decode `data` and name the outcome (see module doc) with a one-line detail."""
+    from tetweave_codec import decoder
+    from tetweave_codec.errors import ContainerError
+
+    try:
+        result = decoder.decode_detailed(data)
+    except ContainerError as exc:
+        return "rejected", str(exc)
+    except Exception as exc:  # noqa: BLE001 -- every other exception is a finding of the campaign
+        return "error", f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}"
+    return classify_result(result)
+
+
+def classify_result(result) -> tuple[str, str]:
+    """ "closed", "empty" or "non_manifold" (with a detail) for a `decoder.DecodeResult`."""
+    import manifold3d
+
+    from tetweave_codec.geometry.marching_tets import check_manifold
+
+    v, f = result.vertices, result.faces
+    if len(f) == 0:
+        return ("empty", f"{result.container.num_points} points") if len(v) == 0 else ("non_manifold", "stray")
+    try:
+        check_manifold(f, len(v), closed=True)
+    except Exception as exc:  # noqa: BLE001
+        return "non_manifold", str(exc)
+    if len(np.unique(f)) != len(v) or not np.isfinite(v).all():
+        return "non_manifold", "unreferenced or non-finite vertices"
+    # manifold3d takes float32: check the mesh in the normalized frame, which the header's transform may not fit.
+    local = (v - result.container.offset) / result.container.scale
+    mesh = manifold3d.Mesh(vert_properties=local.astype(np.float32), tri_verts=f.astype(np.uint32))
+    status = manifold3d.Manifold(mesh).status()
+    if status != manifold3d.Error.NoError:
+        return "non_manifold", f"manifold3d: {status.name}"
+    return "closed", f"{result.backend} {result.container.num_points} points {len(f)} faces"
+
+
+def _worker(conn, memory_gb: float) -> None:
+    """Decode what arrives on `conn` until None; memory capped so that a runaway allocation fails here."""
+    try:
+        import resource
+
+        limit = int(memory_gb * 2**30)
+        resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
+    except (ImportError, ValueError, OSError):  # pragma: no cover - not on every platform
+        pass
+    while True:
+        data = conn.recv()
+        if data is None:
+            return
+        try:
+            conn.send(classify(data))
+        except MemoryError:
+            conn.send(("error", "MemoryError"))
+
+
+class Runner:
+    """A worker process that decodes one case at a time; restarted after a timeout or a crash."""
+
+    def __init__(self, time_limit: float, memory_gb: float):
+        self.time_limit, self.memory_gb = time_limit, memory_gb
+        self.ctx = mp.get_context("spawn")
+        self.proc = None
+
+    def _start(self) -> None:
+        self.conn, child = self.ctx.Pipe()
+        self.proc = self.ctx.Process(target=_worker, args=(child, self.memory_gb), daemon=True)
+        self.proc.start()
+
+    def _stop(self) -> None:
+        if self.proc is not None:
+            self.proc.kill()
+            self.proc.join()
+            self.proc = None
+
+    def run(self, data: bytes) -> tuple[str, str]:
+        if self.proc is None:
+            self._start()
+        try:
+            self.conn.send(data)
+            if self.conn.poll(self.time_limit):
+                return self.conn.recv()
+            self._stop()
+            return "timeout", f"over {self.time_limit:g} s"
+        except (EOFError, OSError, BrokenPipeError):
+            code = self.proc.exitcode if self.proc is not None else None
+            self._stop()
+            return "crash", f"worker exit code {code}"
+
+    def close(self) -> None:
+        if self.proc is not None:
+            try:
+                self.conn.send(None)
+                self.proc.join(5)
+            finally:
+                self._stop()
+
+
+# -----------------------------------------------------------------------------------------------------------
+# the campaign
+
+
+@dataclass
+class Campaign:
+    """Counts of a campaign: outcome -> cases; per outcome, per Delaunay flag of the mutated file; findings."""
+
+    counts: collections.Counter = field(default_factory=collections.Counter)
+    by_backend: collections.Counter = field(default_factory=collections.Counter)
+    reasons: collections.Counter = field(default_factory=collections.Counter)
+    mutations: collections.Counter = field(default_factory=collections.Counter)
+    findings: list = field(default_factory=list)
+    seconds: float = 0.0
+
+    @property
+    def failures(self) -> int:
+        return sum(self.counts[k] for k in FAILURES)
+
+
+def _backend_flag(data: bytes) -> str:
+    return "qhull" if len(data) > 10 and data[10] & FLAG_QHULL else "tetgen"
+
+
+def run_campaign(
+    seeds: list[tuple[str, bytes]],
+    cases: int,
+    seed: int = 0,
+    time_limit: float = DEFAULT_TIME_LIMIT,
+    memory_gb: float = DEFAULT_MEMORY_GB,
+    only: list[int] | None = None,
+    progress=None,
+) -> Campaign:
+    """Run `cases` mutated files (or just the case numbers in `only`) through the decoder; see module doc."""
+    blobs = [b for _, b in seeds]
+    result = Campaign()
+    runner = Runner(time_limit, memory_gb)
+    start = time.perf_counter()
+    try:
+        for i in only if only is not None else range(cases):
+            index, data, applied = mutate(np.random.default_rng([seed, i]), blobs)
+            outcome, detail = runner.run(data)
+            result.counts[outcome] += 1
+            result.by_backend[outcome, _backend_flag(data)] += 1
+            for name in applied:
+                result.mutations[name.split(":")[0]] += 1
+            if outcome == "rejected":
+                result.reasons[_reason(detail)] += 1
+            if outcome in FAILURES:
+                result.findings.append((i, seeds[index][0], applied, outcome, detail))
+            if progress is not None:
+                progress(i, outcome, detail, seeds[index][0], applied)
+    finally:
+        runner.close()
+    result.seconds = time.perf_counter() - start
+    return result
+
+
+def _reason(message: str) -> str:
+    """The kind of a ContainerError message, without its numbers ("truncated .tw file", "invalid .tw header: ...")."""
+    head = message.split(":")[0]
+    if head.startswith("invalid .tw header") and ":" in message:
+        words = [w for w in message.split(":")[1].split() if not any(ch.isdigit() for ch in w)]
+        return f"{head}: {' '.join(words[:3])}"
+    return head
+
+
+def report(result: Campaign, seeds: list[tuple[str, bytes]], cases: int, seed: int) -> str:
+    """The campaign as Markdown."""
+    total = sum(result.counts.values())
+    lines = [
+        f"# Fuzz campaign: {total:,} structure-aware mutations of {len(seeds)} version-2 seed files (seed {seed})",
+        "",
+        f"{result.seconds:.0f} s in all. Failures (non-manifold, other exceptions, timeouts, crashes): "
+        f"**{result.failures}**.",
+        "",
+        "| outcome | cases | TetGen flag | Qhull flag |",
+        "|---|---:|---:|---:|",
+    ]
+    for name in OUTCOMES:
+        lines.append(
+            f"| {name} | {result.counts[name]:,} | {result.by_backend[name, 'tetgen']:,} | "
+            f"{result.by_backend[name, 'qhull']:,} |"
+        )
+    lines += ["", "Mutations applied: " + ", ".join(f"{k} {v:,}" for k, v in result.mutations.most_common()), ""]
+    lines += ["Rejections by message:", ""] + [f"* {k}: {v:,}" for k, v in result.reasons.most_common()]
+    found = result.findings
+    if found:
+        lines += ["", "Findings (case, seed file, mutations, outcome, detail):", ""]
+        lines += [
+            f"* {i} {name} {applied} {outcome}: {detail}" for i, name, applied, outcome, detail in result.findings
+        ]
+    lines += ["", "Seed files: " + ", ".join(f"{name} ({len(data):,} B)" for name, data in seeds)]
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--cases", type=int, default=10_000)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--files", nargs="*", default=[], help="extra version-2 seed files (real encodes)")
+    parser.add_argument("--max-points", type=int, default=3000, help="largest analytic seed file")
+    parser.add_argument("--time-limit", type=float, default=DEFAULT_TIME_LIMIT)
+    parser.add_argument("--memory-gb", type=float, default=DEFAULT_MEMORY_GB)
+    parser.add_argument("--only", type=int, nargs="*", help="replay these case numbers")
+    parser.add_argument("--out", help="write the Markdown report here")
+    parser.add_argument("-v", "--verbose", action="store_true", help="one line per case")
+    args = parser.parse_args(argv)
+    seeds = seed_files(args.seed, args.max_points)
+    for path in args.files:
+        with open(path, "rb") as fh:
+            seeds.append((path.rsplit("/", 1)[-1], fh.read()))
+
+    def progress(i, outcome, detail, name, applied):
+        if args.verbose or outcome in FAILURES:
+            print(f"{i} {name} {applied} -> {outcome}: {detail}", file=sys.stderr, flush=True)
+        elif (i + 1) % 500 == 0:
+            print(f"{i + 1} cases", file=sys.stderr, flush=True)
+
+    result = run_campaign(seeds, args.cases, args.seed, args.time_limit, args.memory_gb, args.only, progress)
+    text = report(result, seeds, args.cases, args.seed)
+    if args.out:
+        with open(args.out, "w") as fh:
+            fh.write(text)
+    print(text)
+    return 1 if result.failures else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
