@@ -139,6 +139,9 @@ def test_mlab_decimation_beats_fast_simplification_at_equal_faces():
     cd_mlab = chamfer_distance(v, f, v_m, f_m, n_samples=20_000)
     cd_fast = chamfer_distance(v, f, v_f, f_f, n_samples=20_000)
     assert cd_mlab < 0.8 * cd_fast, (cd_mlab, cd_fast)
+    # run in the normalized frame: a copy of the input at another scale and place decimates to the same shape
+    v_s, f_s = mlab_decimate(v * 0.01 + [5.0, 0.0, -2.0], f, 0.1)
+    assert np.array_equal(f_s, f_m) and np.allclose((v_s - [5.0, 0.0, -2.0]) / 0.01, v_m, atol=1e-9)
     methods = mlab_draco_methods(keep=(0.1,), bits=(9, 12))
     assert [m.setting for m in methods] == ["10% q9", "10% q12"] and methods[0].cache is methods[1].cache
     assert methods[1].curve == "mlab+draco q12" and methods[1].family == "mlab+draco"
