@@ -179,9 +179,7 @@ def run_method(
     try:
         t0 = time.perf_counter()
         data = method.encode(vertices, faces)
-        # a Precomputed method's encode ran earlier in a worker: its own time, not the look-up's
-        encode_s = getattr(method, "encode_seconds", None) or time.perf_counter() - t0
-        row["encode_s"] = encode_s + method.reused_seconds()
+        row["encode_s"] = time.perf_counter() - t0 + method.reused_seconds()
         row["bytes"] = len(data)
         row["bits_per_vertex"] = 8.0 * len(data) / n_in
         row.update(method.info(data))
@@ -275,13 +273,14 @@ def run_batch(
 class Precomputed(Method):
     """A method whose encodes already ran (in parallel through tetweave_codec.runner, see `precompute`): `encode`
     returns the bytes made for this mesh, found by the mesh's content (`runner.work.mesh_sha256`); labels,
-    decoding and info are the wrapped method's. encode_seconds: the worker's time for the last mesh."""
+    decoding and info are the wrapped method's. The worker's encode time counts as reused seconds (the look-up
+    itself takes milliseconds), so the row states the encode's whole cost."""
 
     def __init__(self, method: Method, results: dict[str, dict]) -> None:
         self.method = method
         self.family = method.family
         self.results = results
-        self.encode_seconds: float | None = None
+        self._worker_seconds = 0.0
 
     @property
     def setting(self) -> str:
@@ -298,12 +297,13 @@ class Precomputed(Method):
         from tetweave_codec.errors import TetweaveError
         from tetweave_codec.runner.work import mesh_sha256
 
+        self._worker_seconds = 0.0
         result = self.results.get(mesh_sha256(vertices, faces))
         if result is None:
             raise TetweaveError("this mesh was not encoded by the runner")
         if result["status"] != "ok":
             raise TetweaveError(result.get("error") or "failed in its worker")
-        self.encode_seconds = result["seconds"]
+        self._worker_seconds = float(result["seconds"])
         self.method.points_used = result.get("points_target", "")
         return result["data"]
 
@@ -314,7 +314,7 @@ class Precomputed(Method):
         return self.method.info(data)
 
     def reused_seconds(self) -> float:
-        return self.method.reused_seconds()
+        return self._worker_seconds + self.method.reused_seconds()
 
 
 def precompute(paths: Sequence[Path], methods: Sequence[Method], executor, threads: int, progress=None) -> list:

@@ -59,9 +59,9 @@ class Method(ABC):
         return {}
 
     def reused_seconds(self) -> float:
-        """Seconds of work that the last `encode` reused from an earlier setting (a decimation shared by several
-        quantizations); the benchmark adds them to the setting's encode time so that every row states its
-        whole cost."""
+        """Seconds of work that the last `encode` reused rather than did (a decimation shared by several
+        quantizations, a fit run earlier in a worker process); the benchmark adds them to the setting's encode
+        time so that every row states its whole cost."""
         return 0.0
 
     def __repr__(self) -> str:
