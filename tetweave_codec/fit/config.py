@@ -50,14 +50,21 @@ QUALITY: dict[str, Schedule] = {
 class Weights:
     """Loss weights (paper Appendix A: mask 10, depth 250, normals 1, fairness 0.35, ODT 0.1, sign 1).
 
-    The image terms are the paper's weights scaled by 0.1. With the exact 3-D term present, renders at
-    CPU-affordable resolutions mostly add pixel-scale noise: spot at 8K points (120 + 60 iterations) reached
-    Chamfer 7.3e-4 with the paper's image weights, 5.1e-4 with a tenth of them and 4.3e-4 without them.
+    The image terms are off. With the exact 3-D term present, renders at CPU-affordable resolutions mostly add
+    pixel-scale noise: spot at 8K points (120 + 60 iterations) reached Chamfer 7.3e-4 with the paper's image
+    weights, 5.1e-4 with a tenth of them and 4.3e-4 without them. (The targets are still rendered: the
+    error-driven resampling compares normal maps.)
     """
 
-    mask: float = 1.0
-    depth: float = 25.0
-    normals: float = 0.1
+    # Off: the renders cost a quarter of the fit's CPU time, and with the 3-D term sampling the mesh by area
+    # (surface_loss.py) the fit without them beat the fit before on all four meshes (renders with area samples
+    # were not measured). One run at 10 KB, bytes x Chamfer relative to the fit before (these weights at
+    # 1 / 25 / 0.1, the 3-D term at the vertices), CPU time in brackets: images off and area samples 0.875 (0.77x)
+    # spot, 0.958 (0.76x) fandisk, 0.873 (0.75x) igea, 0.932 (0.75x) stanford-bunny; images off alone 1.01 spot,
+    # 1.10 fandisk (benchmarks/results/encode_speed.md).
+    mask: float = 0.0
+    depth: float = 0.0
+    normals: float = 0.0
     fairness: float = 0.35
     odt: float = 0.1
     # The paper's 1.0 suppresses spurious surfaces grown from a random start. From the SDF start there are none,
@@ -65,6 +72,10 @@ class Weights:
     # edge midpoints) made a torus fit worse than its starting point (Chamfer 3.6e-3 -> 5.0e-3).
     sign: float = 0.02
     surface: float = 1000.0  # 3-D Chamfer against the input (surface_loss.py); 0 = the paper's renders only
+
+    def uses_images(self) -> bool:
+        """Whether the loss renders the mesh (any image term weighted); else the iterations skip rasterization."""
+        return self.mask > 0 or self.depth > 0 or self.normals > 0
 
     @classmethod
     def paper(cls) -> Weights:

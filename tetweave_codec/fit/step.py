@@ -129,11 +129,12 @@ def regularized_loss(
     total = losses.sign_loss(s, mt.edges) * weights.sign
     parts["sign"] = float(total.detach())
     if mt.faces.shape[0] > 0:
-        cams, target_maps = ctx.targets.select(views)
-        maps = render_maps(mt.vertices, mt.faces, cams, ctx.config.schedule.size)
-        recon, recon_parts = losses.image_loss(maps, target_maps, weights)
-        total = total + recon
-        parts.update(recon_parts)
+        if weights.uses_images():
+            cams, target_maps = ctx.targets.select(views)
+            maps = render_maps(mt.vertices, mt.faces, cams, ctx.config.schedule.size)
+            recon, recon_parts = losses.image_loss(maps, target_maps, weights)
+            total = total + recon
+            parts.update(recon_parts)
         if ctx.surface is not None and weights.surface > 0:
             chamfer = ctx.surface.loss(mt.vertices, mt.faces, ctx.generator)
             total = total + weights.surface * chamfer
