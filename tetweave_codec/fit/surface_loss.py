@@ -45,7 +45,9 @@ class SurfaceTarget:
         self.faces = np.ascontiguousarray(faces, dtype=np.int64)
         self.tree = igl.AABB()
         self.tree.init(self.vertices, self.faces)
-        self.samples, _ = sample_surface(self.vertices, self.faces, n_samples, seed)
+        samples, face = sample_surface(self.vertices, self.faces, n_samples, seed)
+        # In face order, and each call's subset in this order: nearby queries share their walk down the mesh's tree.
+        self.samples = samples[np.argsort(face, kind="stable")]
         self._mesh_tree: _MeshTree | None = None
 
     def closest_points(self, points: np.ndarray) -> np.ndarray:
@@ -70,7 +72,7 @@ class SurfaceTarget:
         cp = torch.from_numpy(self.closest_points(on_faces.detach().cpu().numpy().astype(np.float64))).to(vertices)
         to_input = torch.sqrt(((on_faces - cp) ** 2).sum(-1) + _EPS**2).mean()
 
-        pick = torch.randperm(len(self.samples), generator=generator)[:per_call].numpy()
+        pick = np.sort(torch.randperm(len(self.samples), generator=generator)[:per_call].numpy())
         q = self.samples[pick]
         tree = self._tree_for(v_np, f_np)
         _, face, closest = tree.tree.squared_distance(tree.vertices, f_np, q)
