@@ -249,9 +249,7 @@ def snap_to_grid(points: np.ndarray, s: np.ndarray, planes: np.ndarray, bits: in
     return out_p, out_s
 
 
-def _crease_samples(
-    features: Features, spacing: float
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def _crease_samples(features: Features, spacing: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Points about ``spacing`` apart along the creases: positions (M,3), the two face normals (M,3) each and
     the unit crease direction (M,3). Each edge is cut into pieces of at most SUBSAMPLE * spacing, then a greedy
     pass (in edge order, deterministic) keeps samples at least ``spacing`` from every kept one."""

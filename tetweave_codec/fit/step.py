@@ -68,7 +68,9 @@ class Params:
         pinned: np.ndarray | None = None,
     ):
         # (N,) bool: points whose positions the optimizer leaves alone (feature points, fit.features)
-        self.pinned = None if pinned is None or not np.any(pinned) else torch.as_tensor(np.asarray(pinned, bool), device=device)
+        self.pinned = (
+            None if pinned is None or not np.any(pinned) else torch.as_tensor(np.asarray(pinned, bool), device=device)
+        )
         self.points = torch.tensor(
             np.asarray(points), dtype=torch.float32, device=device, requires_grad=optimize_points
         )
