@@ -164,6 +164,8 @@ class FitConfig:
     weights: Weights = field(default_factory=Weights)
     lr: LearningRates = field(default_factory=LearningRates)
     init: str = "sdf"  # "sdf" (from the input) or "random" (the paper's ball)
+    # "sdf" start: place pinned points around sharp creases when the input has some (fit.features)
+    features: bool = True
     backend: str = "auto"  # Delaunay backend, see delaunay.resolve_backend
     seed: int = 0
     # None: container v1 (float16 positions, s and c); else container v2 with this quantization.

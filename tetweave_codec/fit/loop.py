@@ -30,7 +30,7 @@ from torch import Tensor
 from tetweave_codec.errors import TetweaveError
 from tetweave_codec.fit.config import FitConfig
 from tetweave_codec.fit.finish import FinishResult, finish
-from tetweave_codec.fit.initialize import initial_state, random_state
+from tetweave_codec.fit.initialize import initial_state_pinned, random_state
 from tetweave_codec.fit.resample import resample, voxel_importance
 from tetweave_codec.fit.step import (
     FitContext,
@@ -105,12 +105,19 @@ def _resample(params: Params, grid: Grid, n_target: int, ctx: FitContext) -> Par
             return params
         importance, lo, hi = imp
         keep = one_ring_mask(grid.tets, active_mask(grid.tets, params.s))
+        pinned = None
+        if params.pinned is not None:
+            # feature points stay where they were placed (fit.features); kept points come first, in order
+            keep = keep | params.pinned.to(keep.device)
+            pinned = params.pinned.cpu().numpy()[keep.cpu().numpy()]
         n_target = max(n_target, int(keep.sum()))
         points, s, c = resample(
             params.points, params.s, params.c, grid.tets, keep, importance, (lo, hi), n_target, ctx.generator
         )
         points = points.clamp(-GRID_BOUND, GRID_BOUND)
-    return Params(points.cpu().numpy(), s.cpu().numpy(), c.cpu().numpy(), ctx.device, ctx.config.lr)
+        if pinned is not None:
+            pinned = np.concatenate([pinned, np.zeros(len(points) - len(pinned), dtype=bool)])
+    return Params(points.cpu().numpy(), s.cpu().numpy(), c.cpu().numpy(), ctx.device, ctx.config.lr, pinned=pinned)
 
 
 def _resample_events(sch, n_start: int, n_target: int) -> dict[int, int]:
@@ -253,12 +260,16 @@ def start(vertices: np.ndarray, faces: np.ndarray, ctx: FitContext) -> Params:
     config = ctx.config
     t0 = time.perf_counter()
     n_start = max(64, min(config.points, int(round(config.points * config.schedule.start_fraction))))
+    pinned = None
     if config.init == "sdf":
-        points, s, c = initial_state(vertices, faces, n_start, config.sh_degree, config.seed)
+        bits = None if config.quantization is None else config.quantization.position_bits
+        points, s, c, pinned = initial_state_pinned(
+            vertices, faces, n_start, config.sh_degree, config.seed, features=config.features, position_bits=bits
+        )
     elif config.init == "random":
         points, s, c = random_state(n_start, config.sh_degree, config.seed)
     else:
         raise TetweaveError(f"unknown initialization {config.init!r}")
     assert c.shape[1] == num_coeffs(config.sh_degree)
     ctx.seconds["init"] = time.perf_counter() - t0
-    return Params(points, s, c, ctx.device, config.lr)
+    return Params(points, s, c, ctx.device, config.lr, pinned=pinned)

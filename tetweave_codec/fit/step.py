@@ -65,7 +65,12 @@ class Params:
         device: torch.device,
         lr: LearningRates,
         optimize_points: bool = True,
+        pinned: np.ndarray | None = None,
     ):
+        # (N,) bool: points whose positions the optimizer leaves alone (feature points, fit.features)
+        self.pinned = (
+            None if pinned is None or not np.any(pinned) else torch.as_tensor(np.asarray(pinned, bool), device=device)
+        )
         self.points = torch.tensor(
             np.asarray(points), dtype=torch.float32, device=device, requires_grad=optimize_points
         )
@@ -164,3 +169,5 @@ def backward(loss: Tensor, params: Params) -> None:
     for t in (params.points, params.s, params.c):
         if t.grad is not None:
             torch.nan_to_num_(t.grad, nan=0.0, posinf=0.0, neginf=0.0)
+    if params.pinned is not None and params.points.grad is not None:
+        params.points.grad[params.pinned] = 0.0
