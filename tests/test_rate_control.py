@@ -181,3 +181,15 @@ def test_hole_cap_error_of_a_hemisphere():
     centres = v[f].mean(axis=1)
     upper = f[centres[:, 2] > 0]
     assert rate_control.hole_cap_error(v, upper) == pytest.approx(1 / 12, rel=0.05)
+
+
+@pytest.mark.parametrize("floor,needle", [(4.5e-4, "holes"), (0.0, "points for it by its prior")])
+def test_max_error_beyond_the_prior_is_refused_before_any_fit(monkeypatch, floor, needle):
+    """A target the per-mesh prior puts beyond MAX_RATE_POINTS (or below the hole caps' error) is refused with one
+    line before any fit; the holes are named only when the input has some."""
+    monkeypatch.setattr(rate_control, "mesh_prior", lambda job: (2.0, floor))
+    monkeypatch.setattr(rate_control, "_fit_and_measure", lambda *a: pytest.fail("no fit expected"))
+    with pytest.raises(InputError, match="out of reach") as info:
+        rate_control.encode_to_error(None, 5e-4 if floor else 2e-5)
+    assert needle in str(info.value) and "\n" not in str(info.value)
+    assert ("holes" in str(info.value)) == (floor > 0)

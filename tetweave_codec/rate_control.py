@@ -226,10 +226,11 @@ def encode_to_error(job, max_error: float):
     prior, floor = mesh_prior(job)
     first = prior / (aim - floor) if aim > floor else math.inf
     if first > MAX_RATE_POINTS:
+        holes = f"its holes, capped by the fit, alone cost ~{floor:.2g}; " if floor > 0 else ""
         raise InputError(
             f"a maximum error of {max_error:.3g} is out of reach: this mesh needs about "
-            f"{int(min(first, 1e12)):,} points for it by its prior (its holes, capped by the fit, alone cost "
-            f"~{floor:.2g}; rate control fits at most {MAX_RATE_POINTS:,})"
+            f"{int(min(first, 1e12)):,} points for it by its prior ({holes}rate control fits at most "
+            f"{MAX_RATE_POINTS:,})"
         )
     n = _clamp_points(first)
     for _ in range(MAX_ERROR_FITS):
