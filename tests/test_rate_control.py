@@ -114,6 +114,7 @@ def test_max_error_search_on_a_model_of_the_error(monkeypatch, k, floor):
         return rate_control.Trial(None, None, b"", k / n + floor, None)
 
     monkeypatch.setattr(rate_control, "_fit_and_measure", fake_fit)
+    monkeypatch.setattr(rate_control, "mesh_prior", lambda job: (rate_control.PRIOR_ERROR_POINTS, 0.0))
     monkeypatch.setattr(rate_control, "_smallest_within", lambda job, run, e, n, decode, alpha: (n, run.error))
     target = 1e-3
     needed = k / (target - floor)
@@ -127,8 +128,68 @@ def test_max_error_search_on_a_model_of_the_error(monkeypatch, k, floor):
 
 
 def test_max_error_search_refuses_what_no_allowed_fit_reaches(monkeypatch):
+    monkeypatch.setattr(rate_control, "mesh_prior", lambda job: (rate_control.PRIOR_ERROR_POINTS, 0.0))
     monkeypatch.setattr(
         rate_control, "_fit_and_measure", lambda job, n, q, d: rate_control.Trial(None, None, b"", 5e-3, None)
     )
     with pytest.raises(InputError, match="could not reach|out of reach"):
         rate_control.encode_to_error(None, 1e-3)
+
+
+def bumpy_sphere() -> tuple[np.ndarray, np.ndarray]:
+    """A sphere with fine radial bumps (detail a 1000-vertex decimation cannot hold)."""
+    v, f = _mesh(manifold3d.Manifold.sphere(1.0, 160))
+    u = v / np.linalg.norm(v, axis=1, keepdims=True)
+    bumps = 1.0 + 0.03 * np.sin(23 * u[:, 0]) * np.sin(19 * u[:, 1]) * np.sin(17 * u[:, 2])
+    return v * bumps[:, None], f
+
+
+def test_prior_grows_with_detail_the_decimation_misses():
+    """The per-mesh prior: a smooth sphere gets the base N x Chamfer, a bumpy one (same size) more; the same mesh
+    gives the same prior (the decimation and its Chamfer samples are deterministic)."""
+    from tetweave_codec.encoder import Job
+
+    def prior(v, f):
+        return rate_control.prior_error_points(Job(v, f, 1, None, "default", "cpu", 0, "sdf", None))
+
+    smooth = prior(*_mesh(manifold3d.Manifold.sphere(1.0, 160)))
+    bumpy = prior(*bumpy_sphere())
+    assert smooth == pytest.approx(rate_control.PRIOR_BASE)
+    assert bumpy > smooth + 0.5
+    assert prior(*bumpy_sphere()) == bumpy
+
+
+def test_cli_out_of_reach_error_exits_2_without_output(tmp_path):
+    import trimesh
+
+    v, f = sphere()
+    src = tmp_path / "ball.ply"
+    trimesh.Trimesh(v, f, process=False).export(src)
+    out = tmp_path / "ball.tw"
+    res = CliRunner().invoke(main, ["encode", str(src), "-o", str(out), "--max-error", "1e-9"])
+    assert res.exit_code == 2
+    assert "Traceback" not in res.output and "out of reach" in res.output
+    assert len(res.output.strip().splitlines()) == 1
+    assert not out.exists()
+
+
+def test_hole_cap_error_of_a_hemisphere():
+    """F of the prior: 0 for a closed mesh; a unit hemisphere's one hole (a disc of radius 1, area pi) sits 1/3
+    from its rim on average: F = 0.5 * pi / 3 / (2 pi) = 1/12."""
+    v, f = _mesh(manifold3d.Manifold.sphere(1.0, 256))
+    assert rate_control.hole_cap_error(v, f) == 0.0
+    centres = v[f].mean(axis=1)
+    upper = f[centres[:, 2] > 0]
+    assert rate_control.hole_cap_error(v, upper) == pytest.approx(1 / 12, rel=0.05)
+
+
+@pytest.mark.parametrize("floor,needle", [(4.5e-4, "holes"), (0.0, "points for it by its prior")])
+def test_max_error_beyond_the_prior_is_refused_before_any_fit(monkeypatch, floor, needle):
+    """A target the per-mesh prior puts beyond MAX_RATE_POINTS (or below the hole caps' error) is refused with one
+    line before any fit; the holes are named only when the input has some."""
+    monkeypatch.setattr(rate_control, "mesh_prior", lambda job: (2.0, floor))
+    monkeypatch.setattr(rate_control, "_fit_and_measure", lambda *a: pytest.fail("no fit expected"))
+    with pytest.raises(InputError, match="out of reach") as info:
+        rate_control.encode_to_error(None, 5e-4 if floor else 2e-5)
+    assert needle in str(info.value) and "\n" not in str(info.value)
+    assert ("holes" in str(info.value)) == (floor > 0)

@@ -8,10 +8,10 @@ Two targets, each within about 1.5x the time of one fit at the chosen size:
   their values before the late stage); after the one late stage the steps are nudged, without another late
   stage, until the file lands in the band.
 * `encode_to_error(job, max_error)`: the decoded mesh's Chamfer distance (the summary's metric) is at most
-  `max_error`. The first fit's point count comes from a prior error model, err ~ PRIOR_ERROR_POINTS / N; the
-  measured errors steer at most two more fits (shrink, grow, or interpolate between a fit that met the target
-  and one that missed it). Coarser steps are then tried (without another late stage) while the error stays
-  below the target, to save bytes.
+  `max_error`. The first fit's point count comes from a per-mesh prior, err ~ P / N with P from the Chamfer
+  distance of a quick decimation of the input (prior_error_points); the measured errors steer at most two more
+  fits (shrink, grow, or interpolate between a fit that met the target and one that missed it). Coarser steps
+  are then tried (without another late stage) while the error stays below the target, to save bytes.
 
 A target out of reach raises InputError (the CLI prints one line and exits 2 without writing a file).
 """
@@ -40,12 +40,28 @@ SIZE_AIM = 0.93  # where the estimate before the late stage aims, inside [SIZE_F
 MIN_RATE_POINTS = 128
 MAX_RATE_POINTS = 65536  # the largest fit rate control runs (several minutes on 2 CPU cores)
 MIN_FILE_BYTES = 200  # below this no useful TetWeave file exists (header alone: ~73 bytes)
-# Prior of the error model err ~ PRIOR_ERROR_POINTS / N (normalized frame): N x Chamfer of default-quality fits
-# (benchmarks/results/rate_control.md) is 1.6-1.9 on fandisk, 2.3-2.5 on spot, 4.8-6.1 on igea, 5.2-9.9 on
-# stanford-bunny; the first fit aims at 3.5 and the next ones correct with the measured error.
+# Prior of the error model err ~ PRIOR_ERROR_POINTS / N (normalized frame) before the input is looked at: N x
+# Chamfer of default-quality fits (benchmarks/results/rate_control.md) is 1.6-1.9 on fandisk, 2.3-2.5 on spot,
+# 4.8-6.1 on igea, 5.2-9.9 on stanford-bunny. Only the out-of-reach check before any work uses it; the first fit
+# uses the per-mesh prior below.
 PRIOR_ERROR_POINTS = 3.5
+# Per-mesh prior err ~ P / N + F. P = PRIOR_BASE + PRIOR_DETAIL_SLOPE * max(0, D - PRIOR_DETAIL_KNEE), where D =
+# M x the Chamfer distance of a quadric decimation of the input to M = PRIOR_PROBE_VERTICES vertices (~1 s on 270K
+# faces). Why: a TetWeave fit of a smooth or piecewise-flat surface has an error ~ 1.5-2 / N of its own (its grid
+# spacing; fandisk and spot, whose decimations are near exact, D = 0.17 and 1.3, fit at N x Chamfer 1.4-2.2);
+# detail a thousand vertices cannot hold (scanned skin, bumps: igea D = 2.1, bunny D = 2.3) costs TetWeave extra
+# points in proportion (igea 3.3-4.1, bunny 3.0-3.2 once F is taken off). F (hole_cap_error): the decoded mesh is
+# closed, so every hole of an open input is capped; a flat cap of area A and radius r sits ~r/3 from the rim on
+# average, which adds 0.5 * sum(A r / 3) / area to the Chamfer distance whatever N (stanford-bunny: 5 holes, 2.2 %
+# of its area, F = 4.3e-4, where its fits stalled at 5.95e-4 with 19K points). Calibrated on the four development
+# meshes with benchmarks/rate_control.py; the search below corrects a wrong prior with the measured errors.
+PRIOR_PROBE_VERTICES = 1000
+PRIOR_PROBE_SAMPLES = 20_000  # Chamfer samples of the probe (its resolution ~1e-5 is far below the targets)
+PRIOR_BASE = 1.7
+PRIOR_DETAIL_KNEE = 1.0
+PRIOR_DETAIL_SLOPE = 1.8
 PRIOR_ALPHA = 0.8  # err ~ N^-alpha when only one fit is known (a little below 1: ask for a few more points)
-ERROR_AIM = 0.85  # aim the predicted error at this fraction of the target
+ERROR_AIM = 0.9  # aim the predicted error at this fraction of the target (the per-mesh prior is close)
 ERROR_AIM_SHRINK = 0.75  # a smaller fit aims lower: the error grows faster than 1/N at small counts
 ERROR_AIM_BRACKET = 0.9  # between a fit that met the target and one that missed it
 CLOSE_ENOUGH = 0.75  # a fit within [CLOSE_ENOUGH, 1] x the target ends the search
@@ -190,7 +206,7 @@ def encode_to_error(job, max_error: float):
     """The smallest file this fit finds whose decoded mesh is within `max_error` (Chamfer) of the input.
 
     A search over point counts in log-log space, at most MAX_ERROR_FITS fits: the first count comes from the prior
-    err ~ PRIOR_ERROR_POINTS / N; while every fit met the target the next shrinks (err ~ N^-1, aiming at
+    err ~ prior_error_points(job) / N; while every fit met the target the next shrinks (err ~ N^-1, aiming at
     ERROR_AIM_SHRINK of it), while none did the next grows (err ~ N^-PRIOR_ALPHA, aiming at ERROR_AIM); once one
     fit met it and one missed, the next interpolates between them. It stops when a fit lands in
     [CLOSE_ENOUGH, 1] x the target. Coarser steps are then tried on the smallest fit that met it.
@@ -207,7 +223,16 @@ def encode_to_error(job, max_error: float):
             f"(rate control fits at most {MAX_RATE_POINTS:,})"
         )
     runs: dict[int, Trial] = {}
-    n = _clamp_points(PRIOR_ERROR_POINTS / aim)
+    prior, floor = mesh_prior(job)
+    first = prior / (aim - floor) if aim > floor else math.inf
+    if first > MAX_RATE_POINTS:
+        holes = f"its holes, capped by the fit, alone cost ~{floor:.2g}; " if floor > 0 else ""
+        raise InputError(
+            f"a maximum error of {max_error:.3g} is out of reach: this mesh needs about "
+            f"{int(min(first, 1e12)):,} points for it by its prior ({holes}rate control fits at most "
+            f"{MAX_RATE_POINTS:,})"
+        )
+    n = _clamp_points(first)
     for _ in range(MAX_ERROR_FITS):
         runs[n] = _fit_and_measure(job, n, default_quantization(n), decode)
         met = sorted(k for k, r in runs.items() if r.error <= max_error)
@@ -238,6 +263,70 @@ def encode_to_error(job, max_error: float):
             f"could not reach a maximum error of {max_error:.3g}: {top:,} points reached {runs[top].error:.3g}"
         )
     return _smallest_within(job, runs[met[0]], max_error, met[0], decode, _exponent(runs, PRIOR_ALPHA))
+
+
+def mesh_prior(job) -> tuple[float, float]:
+    """(P, F) of the per-mesh prior err ~ P / N + F of this job's input (see PRIOR_BASE)."""
+    return prior_error_points(job), hole_cap_error(job.normalized, job.f)
+
+
+def prior_error_points(job) -> float:
+    """P of the per-mesh prior err ~ P / N + F (see PRIOR_BASE): from the Chamfer distance of a quadric decimation
+    of the normalized input to PRIOR_PROBE_VERTICES vertices (fast_simplification, deterministic)."""
+    import fast_simplification
+
+    from tetweave_codec.metrics import chamfer_distance
+
+    v, f = job.normalized, job.f
+    if len(v) <= 2 * PRIOR_PROBE_VERTICES:  # already coarse: no detail beyond what a fit resolves
+        return PRIOR_BASE
+    reduction = 1.0 - 2.0 * PRIOR_PROBE_VERTICES / len(f)
+    dv, df = fast_simplification.simplify(
+        np.ascontiguousarray(v, dtype=np.float32), np.ascontiguousarray(f, dtype=np.int32), reduction
+    )
+    if not len(df):
+        return PRIOR_ERROR_POINTS
+    cd = chamfer_distance(v, f, dv, df, n_samples=PRIOR_PROBE_SAMPLES, seed=job.seed, normalize=False)
+    detail = len(dv) * cd
+    return PRIOR_BASE + PRIOR_DETAIL_SLOPE * max(0.0, detail - PRIOR_DETAIL_KNEE)
+
+
+def hole_cap_error(vertices: np.ndarray, faces: np.ndarray) -> float:
+    """F of the prior: the Chamfer distance the caps of the input's holes add (0 for a closed mesh).
+
+    vertices (V,3) in the normalized frame, faces (F,3). Each boundary loop (edges of one face only) is capped by
+    a fan around its centroid: area A, radius r = sqrt(A / pi); a flat disc's points lie r/3 from its rim on
+    average, and the decoded mesh's samples are half of the Chamfer distance: F = 0.5 * sum(A r / 3) / area.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    edges = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    unique, counts = np.unique(edges, axis=0, return_counts=True)
+    rim = unique[counts == 1]
+    if not len(rim):
+        return 0.0
+    n = len(vertices)
+    graph = coo_matrix((np.ones(len(rim)), (rim[:, 0], rim[:, 1])), shape=(n, n))
+    _, label = connected_components(graph, directed=False)
+    loop = label[rim[:, 0]]
+    loops = np.unique(loop)
+    area = (
+        np.linalg.norm(
+            np.cross(vertices[faces[:, 1]] - vertices[faces[:, 0]], vertices[faces[:, 2]] - vertices[faces[:, 0]]),
+            axis=1,
+        ).sum()
+        * 0.5
+    )
+    if area <= 0:
+        return 0.0
+    total = 0.0
+    for k in loops:
+        e = rim[loop == k]
+        centre = vertices[np.unique(e)].mean(0)
+        cap = 0.5 * np.linalg.norm(np.cross(vertices[e[:, 0]] - centre, vertices[e[:, 1]] - centre), axis=1).sum()
+        total += cap * math.sqrt(cap / math.pi) / 3.0
+    return float(0.5 * total / area)
 
 
 def _clamp_points(n: float) -> int:
