@@ -7,8 +7,8 @@ Paper §4 and Appendix A, with the changes that make it affordable on a CPU:
   ball. The first extracted mesh is already close to the input, so hundreds of iterations do what thousands did.
 * Main stage (here): AdamW on points, s and c; Delaunay recomputed every ``delaunay_every`` iterations, with the
   position gradients summed in between and applied once (so the grid stays valid between triangulations); loss =
-  image terms + 3-D surface term + fairness + ODT + sign; error-driven resampling grows the point count to the
-  target in a few steps.
+  3-D surface term + fairness + ODT + sign (+ the paper's image terms when weighted, off by default: see
+  config.Weights); error-driven resampling grows the point count to the target in a few steps.
 * Finish (``finish.py``): the points are fixed to what the container can store and triangulated once, exactly as
   the decoder will; a late stage optimizes only s and c on that triangulation (with the container's quantization in
   the loop for v2); the arrays returned are exactly what the container stores.
