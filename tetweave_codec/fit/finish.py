@@ -29,6 +29,8 @@ from tetweave_codec.geometry.active import active_mask
 # Smallest |s| a v1 file stores: float16 keeps its sign (and marching tets never puts a vertex exactly on a grid
 # point, which would give zero-area triangles). The smallest normal float16, initialize.MIN_ABS_S.
 V1_MIN_ABS_S = MIN_ABS_S
+# Rounds of `_drop_flat_tets` (each triangulates once); on the shared meshes one round removed every flat tet.
+MAX_FLAT_TET_ROUNDS = 8
 # |c| above this saturates tanh for any direction; clamping keeps c finite in float16.
 V1_MAX_ABS_C = 64.0
 
@@ -98,11 +100,55 @@ def finalize(params: Params, ctx: FitContext, position_bits: int | None) -> Fina
         fixed = stored.astype(np.float64)
     else:
         cells, first = Q.merge_collisions(Q.quantize_positions(points, position_bits))
+        cells, first = _drop_flat_tets(cells, first, position_bits, ctx.backend)
         fixed = Q.dequantize_positions(cells, position_bits)
     if len(fixed) < 4:
         raise TetweaveError("the fit produced no surface (is the input a closed or nearly closed shape?)")
     ctx.seconds["finalize"] = ctx.seconds.get("finalize", 0.0) + time.perf_counter() - t0
     return Finalized(fixed, s[first], c[first], stored, cells, position_bits)
+
+
+def flat_tets(cells: np.ndarray, tets: np.ndarray) -> np.ndarray:
+    """Mask (T,) of the tets (T,4) whose four integer grid cells (N,3) are coplanar, by the exact determinant.
+
+    Cells are below 2^16, so the edge vectors are below 2^17 and the determinant below 6 * 2^51: exact in int64.
+    """
+    c = np.asarray(cells, dtype=np.int64)
+    a = c[tets[:, 0]]
+    e1, e2, e3 = c[tets[:, 1]] - a, c[tets[:, 2]] - a, c[tets[:, 3]] - a
+    det = (
+        e1[:, 0] * (e2[:, 1] * e3[:, 2] - e2[:, 2] * e3[:, 1])
+        - e1[:, 1] * (e2[:, 0] * e3[:, 2] - e2[:, 2] * e3[:, 0])
+        + e1[:, 2] * (e2[:, 0] * e3[:, 1] - e2[:, 1] * e3[:, 0])
+    )
+    return det == 0
+
+
+def _drop_flat_tets(
+    cells: np.ndarray, first: np.ndarray, position_bits: int, backend: str
+) -> tuple[np.ndarray, np.ndarray]:
+    """Remove points until the decoder's triangulation of the grid cells (N,3) has no flat tet; `first` (N,)
+    follows.
+
+    Grid points are often coplanar in fours (the feature-aware start puts many on the planes of a CAD part), and
+    TetGen can return a zero-volume tet for them; marching tets then writes zero-area triangles lying across their
+    neighbours, which breaks the no-self-intersection guarantee (fandisk with the feature start: 3 such faces of
+    8,888 at 5 KB). Dropping the last point (canonical order) of each flat tet and triangulating again removes
+    them; the late stage, which runs after, adapts s and c to the remaining points. Deterministic.
+    """
+    from tetweave_codec.geometry.delaunay import tetrahedralize
+
+    for _ in range(MAX_FLAT_TET_ROUNDS):
+        if len(cells) < 5:
+            break
+        tets = tetrahedralize(Q.dequantize_positions(cells, position_bits), backend).tets
+        flat = flat_tets(cells, tets)
+        if not flat.any():
+            break
+        drop = np.zeros(len(cells), dtype=bool)
+        drop[tets[flat].max(axis=1)] = True
+        cells, first = cells[~drop], first[~drop]
+    return cells, first
 
 
 def complete(fin: Finalized, ctx: FitContext, quant: Quantization | None) -> FinishResult:
