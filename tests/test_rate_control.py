@@ -127,6 +127,24 @@ def test_max_error_search_on_a_model_of_the_error(monkeypatch, k, floor):
     assert n <= 1.7 * needed  # not far above the smallest count that meets the target
 
 
+def test_max_error_search_on_a_holed_mesh_does_not_overshoot(monkeypatch):
+    """A holed input whose prior over-counts (P = 4.05 with the hole caps' F = 4.3e-4, true err = 3.1 / N + F,
+    stanford-bunny's numbers): the file must not be sized by P / (aim - F), which lands far below the target with
+    ~1.6x the points needed."""
+    calls = []
+
+    def fake_fit(job, n, quant, decode):
+        calls.append(n)
+        return rate_control.Trial(None, None, b"", 3.1 / n + 4.3e-4, None)
+
+    monkeypatch.setattr(rate_control, "_fit_and_measure", fake_fit)
+    monkeypatch.setattr(rate_control, "mesh_prior", lambda job: (4.05, 4.3e-4))
+    monkeypatch.setattr(rate_control, "_smallest_within", lambda job, run, e, n, decode, alpha: (n, run.error))
+    n, err = rate_control.encode_to_error(None, 1e-3)
+    assert err <= 1e-3 and len(calls) <= rate_control.MAX_ERROR_FITS
+    assert n <= 1.25 * 3.1 / (1e-3 - 4.3e-4)
+
+
 def test_max_error_search_refuses_what_no_allowed_fit_reaches(monkeypatch):
     monkeypatch.setattr(rate_control, "mesh_prior", lambda job: (rate_control.PRIOR_ERROR_POINTS, 0.0))
     monkeypatch.setattr(
