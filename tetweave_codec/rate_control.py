@@ -165,8 +165,9 @@ def _fit_band(job, ctx, result: FinishResult, data: bytes, size: int) -> tuple[F
         for _ in range(40):  # coarser until it fits
             scale *= 1.15
             trial = requantize(
-                result.points, result.cells, result.latent_s, result.latent_c, _scaled(quant, scale), job.sh_degree
-            )
+                result.points, result.cells, result.latent_s, result.latent_c, _scaled(quant, scale), job.sh_degree,
+                result.rdo,
+            )  # fmt: skip
             trial_data = job.pack(trial, ctx)
             if len(trial_data) <= size:
                 return trial, trial_data
@@ -177,8 +178,9 @@ def _fit_band(job, ctx, result: FinishResult, data: bytes, size: int) -> tuple[F
             break
         scale /= 1.15
         trial = requantize(
-            result.points, result.cells, result.latent_s, result.latent_c, _scaled(quant, scale), job.sh_degree
-        )
+            result.points, result.cells, result.latent_s, result.latent_c, _scaled(quant, scale), job.sh_degree,
+            result.rdo,
+        )  # fmt: skip
         trial_data = job.pack(trial, ctx)
         if len(trial_data) > size:
             break
@@ -281,8 +283,9 @@ def _smallest_within(job, run: Trial, max_error: float, points: int, decode, alp
     best = (result, run.data, run.error, run.decoded)
     for scale in (1.4, 2.0, 2.8):
         trial = requantize(
-            result.points, result.cells, result.latent_s, result.latent_c, _scaled(quant, scale), job.sh_degree
-        )
+            result.points, result.cells, result.latent_s, result.latent_c, _scaled(quant, scale), job.sh_degree,
+            result.rdo,
+        )  # fmt: skip
         trial_data = job.pack(trial, ctx)
         if len(trial_data) >= len(best[1]):
             continue

@@ -157,6 +157,10 @@ class FitConfig:
     seed: int = 0
     # None: container v1 (float16 positions, s and c); else container v2 with this quantization.
     quantization: Quantization | None = field(default_factory=Quantization)
+    # Container v2: choose s symbols by rate-distortion (fit/rdo.py) after the late stage; False = plain rounding.
+    s_rdo: bool = True
+    # Fraction of the finalized points pruned before the late stage (fit/prune.py); 0 = none.
+    prune_fraction: float = 0.0
 
 
 def schedule_for(quality: str, iters: int | None = None) -> Schedule:

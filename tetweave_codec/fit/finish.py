@@ -22,6 +22,8 @@ from torch import Tensor
 
 from tetweave_codec.fit.config import Quantization
 from tetweave_codec.fit.initialize import MIN_ABS_S
+from tetweave_codec.fit.prune import prune_mask
+from tetweave_codec.fit.rdo import SymbolRdo, optimize_s_symbols, prepare
 from tetweave_codec.fit.step import FitContext, Params, backward, regularized_loss, triangulate
 from tetweave_codec.formats import quantize as Q
 from tetweave_codec.geometry.active import active_mask
@@ -41,7 +43,8 @@ class FinishResult:
     version 2: cells (N,3) int64 in canonical order, s_sym (N,) int64, c_sym (N,q) int64 and `quantization`;
     points (N,3), s (N,), c (N,q) are their dequantized float64 values.
     latent_s (N,), latent_c (N,q): the late stage's float32 values before quantization (so that other steps can
-    be tried without another late stage, see `requantize`).
+    be tried without another late stage, see `requantize`). rdo: the RD optimization of s symbols that chose
+    s_sym (fit/rdo.py), for `requantize` at other steps; None = plain rounding.
     """
 
     version: int
@@ -54,6 +57,7 @@ class FinishResult:
     c_sym: np.ndarray | None = None
     latent_s: np.ndarray | None = None
     latent_c: np.ndarray | None = None
+    rdo: SymbolRdo | None = None
 
 
 @dataclass
@@ -110,13 +114,33 @@ def complete(fin: Finalized, ctx: FitContext, quant: Quantization | None) -> Fin
     t0 = time.perf_counter()
     if quant is not None and quant.position_bits != fin.position_bits:
         raise ValueError("the quantization's position bits differ from the finalized grid's")
+    if ctx.config.prune_fraction > 0:
+        fin = pruned(fin, ctx.backend, ctx.config.prune_fraction)
     quantizer = None if quant is None else _Quantizer(quant, ctx.config.sh_degree)
     s, c = late_stage(fin.points, fin.s, fin.c, ctx, quantizer)
     ctx.seconds["late"] = ctx.seconds.get("late", 0.0) + time.perf_counter() - t0
     if quant is None:
         s16, c16 = round_float16(s, c)
         return FinishResult(1, fin.stored, s16, c16, latent_s=s, latent_c=c)
-    return requantize(fin.points, fin.cells, s, c, quant, ctx.config.sh_degree)
+    rdo = None
+    if ctx.config.s_rdo:
+        t0 = time.perf_counter()
+        rdo = prepare(fin.points, fin.cells, ctx.backend)
+        ctx.seconds["rdo"] = ctx.seconds.get("rdo", 0.0) + time.perf_counter() - t0
+    return requantize(fin.points, fin.cells, s, c, quant, ctx.config.sh_degree, rdo)
+
+
+def pruned(fin: Finalized, backend: str, fraction: float) -> Finalized:
+    """`fin` without the points `prune.prune_mask` drops (at most `fraction` of them; order kept)."""
+    keep = prune_mask(fin.points, fin.s, backend, fraction)
+    if keep.all():
+        return fin
+    return Finalized(
+        fin.points[keep], fin.s[keep], fin.c[keep],
+        None if fin.stored is None else fin.stored[keep],
+        None if fin.cells is None else fin.cells[keep],
+        fin.position_bits,
+    )  # fmt: skip
 
 
 def requantize(
@@ -126,12 +150,17 @@ def requantize(
     c: np.ndarray,
     quant: Quantization,
     sh_degree: int,
+    rdo: SymbolRdo | None = None,
 ) -> FinishResult:
-    """A v2 FinishResult for latent s (N,), c (N,q) on fixed grid points with the steps of `quant` (no refit)."""
+    """A v2 FinishResult for latent s (N,), c (N,q) on fixed grid points with the steps of `quant` (no refit);
+    with `rdo` (prepared for these points) the s symbols are RD-optimized, else plainly rounded."""
     quantizer = _Quantizer(quant, sh_degree)
     s_sym, c_sym = quantizer.symbols(s, c)
     s_val, c_val = quantizer.values(s_sym, c_sym)
-    return FinishResult(2, points, s_val, c_val, quant, cells, s_sym, c_sym, latent_s=s, latent_c=c)
+    if rdo is not None:
+        s_sym = optimize_s_symbols(rdo, s_sym, quantizer.s_step, c_val)
+        s_val = Q.dequantize_s(s_sym, quantizer.s_step)
+    return FinishResult(2, points, s_val, c_val, quant, cells, s_sym, c_sym, latent_s=s, latent_c=c, rdo=rdo)
 
 
 class _Quantizer:
