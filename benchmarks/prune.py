@@ -7,7 +7,7 @@ and the pruned curves are compared with the unpruned one at equal bytes (log-log
 
 Run (one thread, ~3-5 min per mesh and size):
 
-    cd /work/wt/rdo && OMP_NUM_THREADS=1 /work/venvs/rdo/bin/python -m benchmarks.prune --meshes spot igea \
+    cd /tmp && OMP_NUM_THREADS=1 /work/venvs/rdo/bin/python -m tetweave_codec.benchmarks.prune --meshes spot igea \
         fandisk stanford-bunny --sizes 10000 --fractions 0.05 0.1 > /tmp/prune.md
 
 Prints markdown tables.
@@ -21,13 +21,13 @@ import dataclasses
 import numpy as np
 import torch
 
-from benchmarks.rdo import MESH_DIR, equal_bytes
+from tetweave_codec.benchmarks.rdo import MESH_DIR, equal_bytes
 
 SWEEP = (0.7, 0.85, 1.0, 1.2)
 FRACTIONS = (0.05, 0.1)
 
 
-def run(mesh: str, size: int, fractions, sweep, seed: int = 0) -> list[dict]:
+def run(mesh: str, size: int, fractions, sweep, max_score: float = float("inf"), seed: int = 0) -> list[dict]:
     from tetweave_codec import rate_control
     from tetweave_codec.decoder import decode
     from tetweave_codec.encoder import Job
@@ -60,7 +60,7 @@ def run(mesh: str, size: int, fractions, sweep, seed: int = 0) -> list[dict]:
     base_config = ctx.config
     for frac in (0.0, *fractions):
         ctx.generator.set_state(captured["state"])
-        ctx.config = dataclasses.replace(base_config, prune_fraction=frac)
+        ctx.config = dataclasses.replace(base_config, prune_fraction=frac, prune_max_score=max_score)
         late = complete(fin, ctx, quant)
         for scale in sweep:
             q = rate_control._scaled(final_quant, scale)
@@ -79,6 +79,7 @@ def main() -> None:
     ap.add_argument("--sizes", nargs="+", type=int, default=[10000])
     ap.add_argument("--fractions", nargs="+", type=float, default=list(FRACTIONS))
     ap.add_argument("--sweep", nargs="+", type=float, default=list(SWEEP))
+    ap.add_argument("--max-score", type=float, default=float("inf"), help="in position cells")
     args = ap.parse_args()
     torch.set_num_threads(1)
     print("| mesh | size | file | method | points | bytes | Chamfer | bytes x CD |")
@@ -86,7 +87,7 @@ def main() -> None:
     summary = []
     for mesh in args.meshes:
         for size in args.sizes:
-            rows = run(mesh, size, args.fractions, args.sweep)
+            rows = run(mesh, size, args.fractions, args.sweep, args.max_score)
             for r in rows:
                 cells = (r["mesh"], r["size"], r["kind"], r["method"], r["points"], r["bytes"], f"{r['chamfer']:.4e}")
                 print("| " + " | ".join(map(str, cells)) + f" | {r['bytes'] * r['chamfer']:.3f} |", flush=True)

@@ -11,10 +11,10 @@ latent s and c are quantized both ways:
 
 Run (one thread, ~2-4 min per mesh and size):
 
-    cd /tmp && OMP_NUM_THREADS=1 /work/venvs/rdo/bin/python -m benchmarks.rdo --meshes spot igea fandisk \
-        stanford-bunny --sizes 10000 20000 > rdo.md
+    cd /tmp && OMP_NUM_THREADS=1 /work/venvs/rdo/bin/python -m tetweave_codec.benchmarks.rdo --meshes spot igea \
+        fandisk stanford-bunny --sizes 10000 20000 > rdo.md
 
-(run from the repo root with `-m`, or give the worktree on PYTHONPATH). Prints markdown tables.
+Prints markdown tables.
 """
 
 from __future__ import annotations

@@ -34,3 +34,15 @@ def test_prune_mask_is_bounded_and_independent():
     edges = P.tet_edges(tetrahedralize(points, backend).tets, len(points))
     assert not (~keep[edges[:, 0]] & ~keep[edges[:, 1]]).any()  # no edge loses both ends
     np.testing.assert_array_equal(keep, P.prune_mask(points, s, backend, 0.1))  # deterministic
+
+
+def test_prune_threshold_limits_removal():
+    points = _cloud(seed=2)
+    s = np.linalg.norm(points, axis=1) - 0.5
+    backend = resolve_backend("auto")
+    edges = P.tet_edges(tetrahedralize(points, backend).tets, len(points))
+    score = P.linear_scores(points, s, edges)
+    assert P.prune_mask(points, s, backend, 0.5, max_score=0.0).all() or (score <= 0).any()
+    tau = float(np.percentile(score, 3))
+    keep = P.prune_mask(points, s, backend, 0.5, max_score=tau)
+    assert (score[~keep] <= tau).all() and (~keep).sum() <= (score <= tau).sum()

@@ -93,8 +93,13 @@ def test_residual_pricing_matches_the_format():
     np.testing.assert_array_equal(R.residuals(nbr, beta, sym), predict.residuals(cells, sym))
 
 
-def test_encoder_runs_rdo_and_decodes_exactly_what_it_reported():
-    from tetweave_codec.encoder import encode
+def test_encoder_runs_rdo_and_decodes_exactly_what_it_reported(monkeypatch):
+    import dataclasses
+
+    from tetweave_codec.encoder import Job, encode
+
+    plain_config = Job.config
+    monkeypatch.setattr(Job, "config", lambda self, *a: dataclasses.replace(plain_config(self, *a), s_rdo=True))
 
     mesh = manifold3d.Manifold.sphere(1.0, 32).to_mesh()
     v = np.asarray(mesh.vert_properties[:, :3], dtype=np.float64)

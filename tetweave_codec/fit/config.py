@@ -158,9 +158,15 @@ class FitConfig:
     # None: container v1 (float16 positions, s and c); else container v2 with this quantization.
     quantization: Quantization | None = field(default_factory=Quantization)
     # Container v2: choose s symbols by rate-distortion (fit/rdo.py) after the late stage; False = plain rounding.
-    s_rdo: bool = True
-    # Fraction of the finalized points pruned before the late stage (fit/prune.py); 0 = none.
+    # Off: on the shared meshes at 10-20 KB it saves 0.1-0.3 % of the bytes for 0.1-0.3 % more Chamfer, no better
+    # than a coarser s step (benchmarks/results/rdo.md).
+    s_rdo: bool = False
+    # Pruning before the late stage (fit/prune.py): at most this fraction of the finalized points (0 = none), only
+    # those whose removal moves the surface by at most prune_max_score position cells. Off: at 10 KB, pruning 5 %
+    # changes bytes x Chamfer by +5.3 / +2.1 / -2.1 / +1.6 % on spot / igea / fandisk / stanford-bunny
+    # (benchmarks/results/rdo.md).
     prune_fraction: float = 0.0
+    prune_max_score: float = math.inf
 
 
 def schedule_for(quality: str, iters: int | None = None) -> Schedule:

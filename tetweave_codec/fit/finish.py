@@ -115,7 +115,7 @@ def complete(fin: Finalized, ctx: FitContext, quant: Quantization | None) -> Fin
     if quant is not None and quant.position_bits != fin.position_bits:
         raise ValueError("the quantization's position bits differ from the finalized grid's")
     if ctx.config.prune_fraction > 0:
-        fin = pruned(fin, ctx.backend, ctx.config.prune_fraction)
+        fin = pruned(fin, ctx.backend, ctx.config.prune_fraction, ctx.config.prune_max_score)
     quantizer = None if quant is None else _Quantizer(quant, ctx.config.sh_degree)
     s, c = late_stage(fin.points, fin.s, fin.c, ctx, quantizer)
     ctx.seconds["late"] = ctx.seconds.get("late", 0.0) + time.perf_counter() - t0
@@ -130,9 +130,11 @@ def complete(fin: Finalized, ctx: FitContext, quant: Quantization | None) -> Fin
     return requantize(fin.points, fin.cells, s, c, quant, ctx.config.sh_degree, rdo)
 
 
-def pruned(fin: Finalized, backend: str, fraction: float) -> Finalized:
-    """`fin` without the points `prune.prune_mask` drops (at most `fraction` of them; order kept)."""
-    keep = prune_mask(fin.points, fin.s, backend, fraction)
+def pruned(fin: Finalized, backend: str, fraction: float, max_score_cells: float = math.inf) -> Finalized:
+    """`fin` without the points `prune.prune_mask` drops (at most `fraction` of them, each moving the surface by
+    at most `max_score_cells` position cells, or cell units of the grid of 2^10 for v1; order kept)."""
+    cell = Q.cell_size(fin.position_bits if fin.position_bits is not None else 10)
+    keep = prune_mask(fin.points, fin.s, backend, fraction, max_score_cells * cell)
     if keep.all():
         return fin
     return Finalized(
