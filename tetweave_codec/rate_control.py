@@ -304,6 +304,8 @@ def hole_cap_error(vertices: np.ndarray, faces: np.ndarray) -> float:
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
+    from tetweave_codec.geometry.triangles import face_areas, triangle_cross
+
     edges = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
     unique, counts = np.unique(edges, axis=0, return_counts=True)
     rim = unique[counts == 1]
@@ -314,20 +316,15 @@ def hole_cap_error(vertices: np.ndarray, faces: np.ndarray) -> float:
     _, label = connected_components(graph, directed=False)
     loop = label[rim[:, 0]]
     loops = np.unique(loop)
-    area = (
-        np.linalg.norm(
-            np.cross(vertices[faces[:, 1]] - vertices[faces[:, 0]], vertices[faces[:, 2]] - vertices[faces[:, 0]]),
-            axis=1,
-        ).sum()
-        * 0.5
-    )
+    area = float(face_areas(vertices, faces).sum())
     if area <= 0:
         return 0.0
     total = 0.0
     for k in loops:
         e = rim[loop == k]
         centre = vertices[np.unique(e)].mean(0)
-        cap = 0.5 * np.linalg.norm(np.cross(vertices[e[:, 0]] - centre, vertices[e[:, 1]] - centre), axis=1).sum()
+        fan = np.stack([np.broadcast_to(centre, (len(e), 3)), vertices[e[:, 0]], vertices[e[:, 1]]], axis=1)
+        cap = 0.5 * np.linalg.norm(triangle_cross(fan), axis=1).sum()
         total += cap * math.sqrt(cap / math.pi) / 3.0
     return float(0.5 * total / area)
 

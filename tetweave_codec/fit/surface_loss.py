@@ -100,12 +100,7 @@ class SurfaceTarget:
         import igl
 
         cached = self._mesh_tree
-        if (
-            cached is not None
-            and cached.calls < TREE_REUSE_CALLS
-            and cached.faces.shape == f_np.shape
-            and np.array_equal(cached.faces, f_np)
-        ):
+        if cached is not None and cached.calls < TREE_REUSE_CALLS and np.array_equal(cached.faces, f_np):
             cached.calls += 1
             return cached
         tree = igl.AABB()
