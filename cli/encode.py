@@ -222,7 +222,7 @@ def _encode_batch(inputs, output, opts, jobs, use_ray, ray_address, force, quiet
 def _encode_one(mesh: Path, output: Path | None, opts, quiet: bool) -> None:
     """One file in this process, with the fit's own progress bar."""
     from tetweave_codec.encoder import encode as encode_mesh
-    from tetweave_codec.fit.config import schedule_for
+    from tetweave_codec.fit.config import scaled_schedule, schedule_for
     from tetweave_codec.meshio import load_mesh, write_bytes_atomic
     from tetweave_codec.runner.inputs import check_output_file
 
@@ -233,6 +233,8 @@ def _encode_one(mesh: Path, output: Path | None, opts, quiet: bool) -> None:
     dev = configure_torch(opts.threads, opts.device)
     vertices, faces = load_mesh(mesh)
     schedule = schedule_for(opts.quality, opts.iters)
+    if opts.iters is None:  # the encoder scales the preset's iterations for smaller fits, as here
+        schedule = scaled_schedule(schedule, opts.points)
     options = opts.encoder_kwargs(dev)
     size, max_error, sh_degree = opts.size, opts.max_error, opts.sh_degree
     t0 = time.perf_counter()

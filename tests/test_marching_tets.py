@@ -485,3 +485,35 @@ def test_check_manifold_accepts_closed_meshes_and_names_each_defect():
     for what, faces in broken.items():
         with pytest.raises(TopologyError, match="twin" if what == "twin" else "twice|degenerate"):
             check_manifold(faces, 4)
+
+
+def test_cached_topology_gives_the_same_mesh_and_follows_sign_changes():
+    from tetweave_codec.fit.step import TopologyCache, extract, triangulate
+
+    rng = np.random.default_rng(5)
+    pts = rng.uniform(-1, 1, (300, 3))
+    grid = triangulate(pts, "tetgen")
+    p = torch.tensor(pts, dtype=torch.float64, requires_grad=True)
+    s0 = np.linalg.norm(pts, axis=1) - 0.6
+    flipped = s0.copy()
+    k = int(np.argmin(np.abs(s0)))
+    flipped[k] = -s0[k]
+    cache = TopologyCache()
+    reused = []
+    for s_np in (s0, s0 * 1.01, flipped):
+        s = torch.tensor(s_np, requires_grad=True)
+        s_ref = torch.tensor(s_np, requires_grad=True)
+        before = cache.topology
+        got = extract(p, s, None, grid, cache)
+        ref = extract(p, s_ref, None, grid)
+        for a, b in zip(got, ref, strict=True):
+            assert torch.equal(a, b)
+        got.vertices.sum().backward()
+        ref.vertices.sum().backward()
+        assert torch.equal(s.grad, s_ref.grad)
+        reused.append(cache.topology is before)
+    assert reused == [False, True, False]  # reused exactly when no sign changed
+    # a new triangulation (a new tets tensor) is never served from the cache
+    other = triangulate(pts[::-1].copy(), "tetgen")
+    out = extract(p, torch.tensor(s0), None, other, cache)
+    assert torch.equal(out.faces, extract(p, torch.tensor(s0), None, other).faces)

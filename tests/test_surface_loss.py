@@ -19,26 +19,27 @@ def _sphere(subdivisions: int = 3, radius: float = 0.5) -> tuple[np.ndarray, np.
 
 def _loss(target: SurfaceTarget, v: np.ndarray, f: np.ndarray, seed: int = 0) -> torch.Tensor:
     vt = torch.tensor(v, dtype=torch.float64, requires_grad=True)
-    return target.loss(vt, torch.from_numpy(f), torch.Generator().manual_seed(seed))
+    return target.loss(vt, torch.from_numpy(f), torch.Generator().manual_seed(seed)).chamfer
 
 
 def test_sampler_follows_area_and_stays_on_faces():
     # two triangles in the plane z = 0 with areas 1/2 and 3/2: a quarter of the samples in the first
     v = torch.tensor([[0, 0, 0], [1, 0, 0], [0, 1, 0], [2, 0, 0], [1, 3, 0]], dtype=torch.float64)
     f = torch.tensor([[0, 1, 2], [1, 3, 4]])
-    p = sample_surface_torch(v, f, 20_000, torch.Generator().manual_seed(1))
+    p, face = sample_surface_torch(v, f, 20_000, torch.Generator().manual_seed(1))
     assert p.shape == (20_000, 3)
     assert torch.all(p[:, 2] == 0)
     in_first = (p[:, 0] + p[:, 1] <= 1.0 + 1e-12).double().mean().item()
     assert in_first == pytest.approx(0.25, abs=0.015)
+    assert torch.equal(face == 0, p[:, 0] + p[:, 1] <= 1.0 + 1e-12)  # each sample lies on the face it names
 
 
 def test_sampler_is_deterministic_and_differentiable():
     v, f = _sphere(1)
     vt = torch.tensor(v, requires_grad=True)
     ft = torch.from_numpy(f)
-    a = sample_surface_torch(vt, ft, 500, torch.Generator().manual_seed(3))
-    b = sample_surface_torch(vt, ft, 500, torch.Generator().manual_seed(3))
+    a, _ = sample_surface_torch(vt, ft, 500, torch.Generator().manual_seed(3))
+    b, _ = sample_surface_torch(vt, ft, 500, torch.Generator().manual_seed(3))
     assert torch.equal(a, b)
     a.sum().backward()
     # each sample's corner weights sum to 1, so d(sum of samples)/d(vertices) sums to the sample count per axis
@@ -47,7 +48,7 @@ def test_sampler_is_deterministic_and_differentiable():
 
 def test_sampler_on_zero_area_mesh_is_finite():
     v = torch.zeros(3, 3, dtype=torch.float64)
-    p = sample_surface_torch(v, torch.tensor([[0, 1, 2]]), 10, torch.Generator().manual_seed(0))
+    p, _ = sample_surface_torch(v, torch.tensor([[0, 1, 2]]), 10, torch.Generator().manual_seed(0))
     assert torch.isfinite(p).all()
 
 
@@ -63,7 +64,7 @@ def test_loss_gradient_pulls_the_mesh_back():
     v, f = _sphere(3, radius=0.5)
     target = SurfaceTarget(v, f, n_samples=20_000, seed=0)
     vt = torch.tensor(v * 1.05, requires_grad=True)
-    target.loss(vt, torch.from_numpy(f), torch.Generator().manual_seed(0)).backward()
+    target.loss(vt, torch.from_numpy(f), torch.Generator().manual_seed(0)).chamfer.backward()
     radial = (vt.grad * torch.from_numpy(v)).sum(-1)
     assert (radial > 0).float().mean().item() > 0.95  # descending moves (almost) every vertex inwards
 
@@ -126,3 +127,34 @@ def test_fit_without_image_weights_never_renders(monkeypatch):
     v, f = _sphere(3, radius=0.6)
     result = encode(v, f, points=256, quality="fast", iters=6, device="cpu", seed=0)
     assert result.stats["bytes"] > 0
+
+
+def _square(angle: float = 0.0, half: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
+    """A square (4 vertices, 2 faces) in the plane z = 0, tilted by `angle` radians about the x axis."""
+    v = np.array([[-half, -half, 0], [half, -half, 0], [half, half, 0], [-half, half, 0]], dtype=np.float64)
+    c, s = np.cos(angle), np.sin(angle)
+    v = v @ np.array([[1, 0, 0], [0, c, s], [0, -s, c]])
+    return v, np.array([[0, 1, 2], [0, 2, 3]], dtype=np.int64)
+
+
+@pytest.mark.parametrize("angle", [0.0, 0.2, 0.6])
+def test_normal_term_is_one_minus_cosine_of_the_tilt(angle):
+    v, f = _square()
+    target = SurfaceTarget(v, f, n_samples=5_000, seed=0)
+    tv, tf = _square(angle)
+    terms = target.loss(torch.tensor(tv), torch.from_numpy(tf), torch.Generator().manual_seed(0))
+    assert terms.normals.item() == pytest.approx(1.0 - np.cos(angle), abs=1e-9)
+    # flipped winding (inward normals) costs nothing: the term is orientation-agnostic like the metric
+    flipped = target.loss(torch.tensor(tv), torch.from_numpy(tf[:, ::-1].copy()), torch.Generator().manual_seed(0))
+    assert flipped.normals.item() == pytest.approx(terms.normals.item(), abs=1e-9)
+
+
+def test_normal_term_gradient_untilts_the_mesh():
+    v, f = _square()
+    target = SurfaceTarget(v, f, n_samples=5_000, seed=0)
+    tv, tf = _square(0.3)
+    vt = torch.tensor(tv, requires_grad=True)
+    target.loss(vt, torch.from_numpy(tf), torch.Generator().manual_seed(0)).normals.backward()
+    stepped = (vt - 0.05 * vt.grad / vt.grad.norm()).detach()
+    after = target.loss(stepped, torch.from_numpy(tf), torch.Generator().manual_seed(0)).normals.item()
+    assert after < 1.0 - np.cos(0.3) - 1e-4

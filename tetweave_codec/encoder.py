@@ -17,7 +17,7 @@ import numpy as np
 import torch
 
 from tetweave_codec.errors import InputError
-from tetweave_codec.fit.config import FitConfig, Quantization, default_quantization, schedule_for
+from tetweave_codec.fit.config import FitConfig, Quantization, default_quantization, scaled_schedule, schedule_for
 from tetweave_codec.fit.finish import FinishResult, finish
 from tetweave_codec.fit.loop import FitResult, deterministic_torch
 from tetweave_codec.fit.step import FitContext, Params, ProgressFn
@@ -116,7 +116,18 @@ def encode(
         raise InputError("--size and --max-error need container version 2")
     if size is not None and max_error is not None:
         raise InputError("give either a size or a maximum error, not both")
-    job = Job(v, f, sh_degree, schedule_for(quality, iters), quality, resolve_device(device), seed, init, progress)
+    job = Job(
+        v,
+        f,
+        sh_degree,
+        schedule_for(quality, iters),
+        quality,
+        resolve_device(device),
+        seed,
+        init,
+        progress,
+        scale_iterations=iters is None,
+    )
     if size is not None:
         from tetweave_codec.rate_control import encode_to_size
 
@@ -140,7 +151,9 @@ class Job:
     path shares: main stage, packing, decoding and the summary. Rate control (rate_control.py) runs several fits
     of one Job."""
 
-    def __init__(self, v, f, sh_degree, schedule, quality, device, seed, init, progress):
+    def __init__(self, v, f, sh_degree, schedule, quality, device, seed, init, progress, scale_iterations=True):
+        """scale_iterations: run `fit.config.scaled_schedule` of `schedule` for each point count (off when the
+        caller fixed the iterations)."""
         from tetweave_codec.meshio import normalize
 
         self.t_start = time.perf_counter()
@@ -148,13 +161,14 @@ class Job:
         self.normalized, self.scale, self.offset = normalize(v)
         self.sh_degree, self.schedule, self.quality = sh_degree, schedule, quality
         self.device, self.seed, self.init, self.progress = device, seed, init, progress
+        self.scale_iterations = scale_iterations
         self.seconds: dict[str, float] = {}
 
     def config(self, points: int, quantization: Quantization | None) -> FitConfig:
         return FitConfig(
             points=points,
             sh_degree=self.sh_degree,
-            schedule=self.schedule,
+            schedule=scaled_schedule(self.schedule, points) if self.scale_iterations else self.schedule,
             init=self.init,
             seed=self.seed,
             quantization=quantization,

@@ -19,7 +19,7 @@ from tetweave_codec.fit.config import FitConfig, LearningRates
 from tetweave_codec.fit.surface_loss import SurfaceTarget
 from tetweave_codec.fit.targets import Targets
 from tetweave_codec.geometry.delaunay import tetrahedralize
-from tetweave_codec.geometry.marching_tets import marching_tets
+from tetweave_codec.geometry.marching_tets import Topology, marching_tets, marching_tets_topology
 from tetweave_codec.render import render_maps
 
 ProgressFn = Callable[[str, int, int, dict], None]
@@ -35,7 +35,8 @@ class FitContext:
 
     config: the settings. targets: renders of the input. surface: the 3-D Chamfer term (None when weighted 0).
     backend: the Delaunay backend the decoder will use. generator: the one RNG of the fit (seeded by config.seed).
-    history: (stage, iteration, loss) samples. seconds: wall time per stage.
+    history: (stage, iteration, loss) samples. seconds: wall time per stage. topology: the last marching-tets
+    topology (see `extract`).
     """
 
     config: FitConfig
@@ -47,6 +48,7 @@ class FitContext:
     progress: ProgressFn = noop_progress
     history: list[tuple[str, int, float]] = field(default_factory=list)
     seconds: dict[str, float] = field(default_factory=dict)
+    topology: TopologyCache = field(default_factory=lambda: TopologyCache())
 
     def random_views(self) -> Tensor:
         """Indices of this iteration's target views."""
@@ -106,9 +108,28 @@ def triangulate(points: Tensor | np.ndarray, backend: str, device: torch.device 
     return Grid(torch.from_numpy(tri.tets).to(device), torch.from_numpy(tri.hull_faces).to(device))
 
 
-def extract(points: Tensor, s: Tensor, c: Tensor, grid: Grid):
-    """The mesh exactly as the decoder extracts it (hull caps included), differentiable."""
-    return marching_tets(points, grid.tets, s, c, hull_faces=grid.hull)
+def extract(points: Tensor, s: Tensor, c: Tensor, grid: Grid, cache: TopologyCache | None = None):
+    """The mesh exactly as the decoder extracts it (hull caps included), differentiable.
+
+    With a `cache`, the marching-tets topology of the previous call is reused when the grid and every sign of s
+    are the same (the result is identical either way)."""
+    if cache is None:
+        return marching_tets(points, grid.tets, s, c, hull_faces=grid.hull)
+    with torch.no_grad():
+        inside = s.detach() < 0
+        if cache.tets is not grid.tets or cache.inside is None or not torch.equal(cache.inside, inside):
+            cache.tets, cache.inside = grid.tets, inside
+            cache.topology = marching_tets_topology(grid.tets, inside, grid.hull)
+    return marching_tets(points, grid.tets, s, c, hull_faces=grid.hull, topology=cache.topology)
+
+
+@dataclass
+class TopologyCache:
+    """The last marching-tets topology of a fit, for the tets tensor (T,4) and inside flags (N,) it came from."""
+
+    tets: Tensor | None = None
+    inside: Tensor | None = None
+    topology: Topology | None = None
 
 
 def regularized_loss(
@@ -129,7 +150,7 @@ def regularized_loss(
     factor m instead of m times (saves ~90 ms per iteration at 16K points).
     """
     weights = ctx.config.weights
-    mt = extract(points, s, c, grid)
+    mt = extract(points, s, c, grid, ctx.topology)
     parts: dict[str, float] = {}
     total = losses.sign_loss(s, mt.edges) * weights.sign
     parts["sign"] = float(total.detach())
@@ -141,9 +162,10 @@ def regularized_loss(
             total = total + recon
             parts.update(recon_parts)
         if ctx.surface is not None and weights.surface > 0:
-            chamfer = ctx.surface.loss(mt.vertices, mt.faces, ctx.generator)
-            total = total + weights.surface * chamfer
-            parts["surface"] = float(chamfer.detach())
+            surface = ctx.surface.loss(mt.vertices, mt.faces, ctx.generator)
+            total = total + weights.surface * surface.chamfer + weights.surface_normals * surface.normals
+            parts["surface"] = float(surface.chamfer.detach())
+            parts["surface_normals"] = float(surface.normals.detach())
         if with_grid_terms:
             fair = losses.fairness_loss(mt.vertices, mt.faces) * weights.fairness
             total = total + fair

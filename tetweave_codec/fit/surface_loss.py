@@ -15,20 +15,40 @@ Closest points and barycentrics are found without gradient and then held fixed (
 the distances are differentiable w.r.t. the mesh vertices, hence w.r.t. points, s and c through marching tets.
 The loss is the mean of sqrt(d^2 + eps^2), i.e. the Chamfer distance itself (not squared), so its scale is the
 metric's.
+
+The same closest faces give a normal term, the bench's normal consistency turned into a loss: 1 - |n_mesh . n_in|
+averaged over both sample sets, with n_mesh the unit normal of the mesh face a sample lies on (mesh -> input) or
+is closest to (input -> mesh) and n_in that of the input face. Orientation-agnostic like the metric, so inputs
+with inconsistent winding are fine. It costs no query (the faces come with the closest points).
 """
 
 from __future__ import annotations
+
+from typing import NamedTuple
 
 import numpy as np
 import torch
 from torch import Tensor
 
-from tetweave_codec.geometry.triangles import sample_surface, sample_surface_torch
+from tetweave_codec.geometry.triangles import (
+    draw_surface_samples,
+    face_normals,
+    points_from_barycentrics,
+    sample_surface,
+)
 
 # Smoothing of sqrt at 0 (normalized units): far below any distance the fit resolves.
 _EPS = 1e-6
 # Calls for which the current mesh's AABB tree is reused while the mesh keeps the same faces (see `_MeshTree`).
 TREE_REUSE_CALLS = 4
+
+
+class SurfaceLoss(NamedTuple):
+    """The two terms of `SurfaceTarget.loss`, 0-dim tensors: the symmetric Chamfer distance (normalized units) and
+    the normal error 1 - mean |cos| between mesh and input normals at the same sample pairs (0 = aligned)."""
+
+    chamfer: Tensor
+    normals: Tensor
 
 
 class SurfaceTarget:
@@ -47,18 +67,22 @@ class SurfaceTarget:
         self.tree.init(self.vertices, self.faces)
         samples, face = sample_surface(self.vertices, self.faces, n_samples, seed)
         # In face order, and each call's subset in this order: nearby queries share their walk down the mesh's tree.
-        self.samples = samples[np.argsort(face, kind="stable")]
+        order = np.argsort(face, kind="stable")
+        self.samples = samples[order]
+        self.face_normals = face_normals(self.vertices, self.faces)  # (F,3) unit, zero rows for degenerate faces
+        self.sample_normals = self.face_normals[face[order]]  # (n_samples,3)
         self._mesh_tree: _MeshTree | None = None
 
-    def closest_points(self, points: np.ndarray) -> np.ndarray:
-        """Closest points (n,3) on the input surface to `points` (n,3)."""
-        _, _, cp = self.tree.squared_distance(self.vertices, self.faces, np.ascontiguousarray(points, np.float64))
-        return cp
+    def closest_points(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Closest points (n,3) on the input surface to `points` (n,3) and the input face (n,) int64 of each."""
+        _, face, cp = self.tree.squared_distance(self.vertices, self.faces, np.ascontiguousarray(points, np.float64))
+        return cp, np.asarray(face, dtype=np.int64).reshape(-1)
 
-    def loss(self, vertices: Tensor, faces: Tensor, generator: torch.Generator, per_call: int = 8_000) -> Tensor:
-        """Symmetric point-to-surface Chamfer distance between the mesh (vertices (V,3), faces (F,3)) and the input.
+    def loss(self, vertices: Tensor, faces: Tensor, generator: torch.Generator, per_call: int = 8_000) -> SurfaceLoss:
+        """Symmetric point-to-surface Chamfer distance and normal error between the mesh (vertices (V,3), faces
+        (F,3)) and the input.
 
-        Differentiable w.r.t. `vertices`. Returns a 0-dim tensor on their device.
+        Differentiable w.r.t. `vertices`. Returns 0-dim tensors on their device.
         """
         import igl
 
@@ -68,9 +92,13 @@ class SurfaceTarget:
         # (before), a flat face spanning a curved input cost nothing between its corners. With the renders off,
         # vertices -> area samples changed bytes x Chamfer at 10 KB by 0.87x on spot and fandisk in one run
         # (benchmarks/results/encode_speed.md).
-        on_faces = sample_surface_torch(vertices, faces, max(len(v_np), per_call), generator)
-        cp = torch.from_numpy(self.closest_points(on_faces.detach().cpu().numpy().astype(np.float64))).to(vertices)
-        to_input = torch.sqrt(((on_faces - cp) ** 2).sum(-1) + _EPS**2).mean()
+        sample_face, bary = draw_surface_samples(vertices, faces, max(len(v_np), per_call), generator)
+        on_faces = points_from_barycentrics(vertices, faces, sample_face, bary)
+        cp, input_face = self.closest_points(on_faces.detach().cpu().numpy().astype(np.float64))
+        to_input = torch.sqrt(((on_faces - torch.from_numpy(cp).to(vertices)) ** 2).sum(-1) + _EPS**2).mean()
+        mesh_normals = face_normals(vertices, faces)  # (F,3), differentiable
+        n_in = torch.from_numpy(self.face_normals[input_face]).to(vertices)
+        normals_to_input = 1.0 - (mesh_normals[sample_face] * n_in).sum(-1).abs().mean()
 
         pick = np.sort(torch.randperm(len(self.samples), generator=generator)[:per_call].numpy())
         q = self.samples[pick]
@@ -87,7 +115,10 @@ class SurfaceTarget:
         on_mesh = (torch.from_numpy(bary).to(vertices)[..., None] * corners).sum(1)
         q_t = torch.from_numpy(q).to(vertices)
         to_mesh = torch.sqrt(((on_mesh - q_t) ** 2).sum(-1) + _EPS**2).mean()
-        return 0.5 * (to_input + to_mesh)
+        n_q = torch.from_numpy(self.sample_normals[pick]).to(vertices)
+        mesh_face = torch.from_numpy(face).to(faces.device)
+        normals_to_mesh = 1.0 - (mesh_normals[mesh_face] * n_q).sum(-1).abs().mean()
+        return SurfaceLoss(0.5 * (to_input + to_mesh), 0.5 * (normals_to_input + normals_to_mesh))
 
     def _tree_for(self, v_np: np.ndarray, f_np: np.ndarray) -> _MeshTree:
         """An AABB tree of the current mesh (vertices (V,3), faces (F,3)), reused while the faces stay the same.

@@ -116,12 +116,28 @@ class MarchingTetsResult(NamedTuple):
     face_tets: Any
 
 
+class Topology(NamedTuple):
+    """The no-gradient part of `marching_tets` for one triangulation and one sign pattern (torch tensors).
+
+    edges (V,2) long: active edge (i inside, j outside) of each surface vertex, cap vertices (i, i) last.
+    faces (F,3) long, face_tets (F,) long (-1 for caps). num_edge_vertices: V minus the cap vertices.
+    A fit's iterations between re-triangulations often keep every sign (77 % of them for spot at 8K points), and
+    then all of this is the same; `marching_tets` takes it back instead of recomputing it.
+    """
+
+    edges: Any
+    faces: Any
+    face_tets: Any
+    num_edge_vertices: int
+
+
 def marching_tets(
     points: torch.Tensor,
     tets: torch.Tensor,
     s: torch.Tensor,
     c: torch.Tensor | None = None,
     hull_faces: torch.Tensor | None = None,
+    topology: Topology | None = None,
 ) -> MarchingTetsResult:
     """Directional marching tets in torch, differentiable w.r.t. `points`, `s` and `c`.
 
@@ -131,45 +147,57 @@ def marching_tets(
         s: (N,) base signed distance, s < 0 inside.
         c: (N, q) SH coefficients, q in {0, 1, 4, 9, 16}, or None (same as q = 0: s_hat = s).
         hull_faces: optional (H, 3) long tensor, outward convex hull triangles; closes the surface there.
+        topology: `marching_tets_topology(tets, s < 0, hull_faces)` when the caller has it (same tets, same
+            signs); computed here otherwise.
     Returns:
         MarchingTetsResult of tensors on the device of `points`.
     """
     import torch
 
-    device = points.device
-    n = points.shape[0]
-    with torch.no_grad():
-        tets = tets.to(device=device, dtype=torch.long)
-        inside = s.detach() < 0
-        code = (inside[tets].long() * torch.as_tensor(CASE_WEIGHTS, device=device)).sum(1)
-        tet_idx = torch.nonzero((code > 0) & (code < 15)).squeeze(1)
-        code = code[tet_idx]
-        ends = tets[tet_idx][:, torch.as_tensor(TET_EDGES, device=device)]  # (Tv, 6, 2)
-        lo = torch.minimum(ends[..., 0], ends[..., 1])
-        hi = torch.maximum(ends[..., 0], ends[..., 1])
-        active = torch.as_tensor(ACTIVE_EDGE_TABLE, device=device)[code]  # (Tv, 6)
-        keys, inverse = torch.unique((lo * n + hi)[active], sorted=True, return_inverse=True)
-        slot = torch.full(active.shape, -1, dtype=torch.long, device=device)
-        slot[active] = inverse
-        tri = torch.as_tensor(TRIANGLE_TABLE, device=device)[code]  # (Tv, 2, 3)
-        has = tri[..., 0] >= 0
-        faces = torch.gather(slot, 1, tri.clamp(min=0).reshape(-1, 6)).reshape(-1, 2, 3)[has]
-        face_tets = tet_idx[:, None].expand(-1, 2)[has]
-        lo, hi = keys // n, keys % n
-        lo_in = inside[lo]
-        edges = torch.stack([torch.where(lo_in, lo, hi), torch.where(lo_in, hi, lo)], 1)
-    vertices = _edge_vertices(points, s, c, edges[:, 0], edges[:, 1])
-    if hull_faces is not None and len(hull_faces):
+    if topology is None:
         with torch.no_grad():
-            hull_faces = hull_faces.to(device=device, dtype=torch.long)
-            cap = _caps_torch(hull_faces, inside, keys, n, vertices.shape[0])
+            topology = marching_tets_topology(tets.to(points.device), s.detach() < 0, hull_faces)
+    edges, k = topology.edges, topology.num_edge_vertices
+    vertices = _edge_vertices(points, s, c, edges[:k, 0], edges[:k, 1])
+    if k < edges.shape[0]:
+        vertices = torch.cat([vertices, points[edges[k:, 0]]], 0)
+    return MarchingTetsResult(vertices, topology.faces, edges, topology.face_tets)
+
+
+def marching_tets_topology(tets: torch.Tensor, inside: torch.Tensor, hull_faces: torch.Tensor | None) -> Topology:
+    """Active edges, faces and their tets for tets (T,4) long and the (N,) bool inside flags (s < 0); torch."""
+    import torch
+
+    device = inside.device
+    n = inside.shape[0]
+    tets = tets.to(device=device, dtype=torch.long)
+    code = (inside[tets].long() * torch.as_tensor(CASE_WEIGHTS, device=device)).sum(1)
+    tet_idx = torch.nonzero((code > 0) & (code < 15)).squeeze(1)
+    code = code[tet_idx]
+    ends = tets[tet_idx][:, torch.as_tensor(TET_EDGES, device=device)]  # (Tv, 6, 2)
+    lo = torch.minimum(ends[..., 0], ends[..., 1])
+    hi = torch.maximum(ends[..., 0], ends[..., 1])
+    active = torch.as_tensor(ACTIVE_EDGE_TABLE, device=device)[code]  # (Tv, 6)
+    keys, inverse = torch.unique((lo * n + hi)[active], sorted=True, return_inverse=True)
+    slot = torch.full(active.shape, -1, dtype=torch.long, device=device)
+    slot[active] = inverse
+    tri = torch.as_tensor(TRIANGLE_TABLE, device=device)[code]  # (Tv, 2, 3)
+    has = tri[..., 0] >= 0
+    faces = torch.gather(slot, 1, tri.clamp(min=0).reshape(-1, 6)).reshape(-1, 2, 3)[has]
+    face_tets = tet_idx[:, None].expand(-1, 2)[has]
+    lo, hi = keys // n, keys % n
+    lo_in = inside[lo]
+    edges = torch.stack([torch.where(lo_in, lo, hi), torch.where(lo_in, hi, lo)], 1)
+    num_edge_vertices = int(edges.shape[0])
+    if hull_faces is not None and len(hull_faces):
+        hull_faces = hull_faces.to(device=device, dtype=torch.long)
+        cap = _caps_torch(hull_faces, inside, keys, n, num_edge_vertices)
         if cap is not None:
             cap_points, cap_faces = cap
-            vertices = torch.cat([vertices, points[cap_points]], 0)
             edges = torch.cat([edges, torch.stack([cap_points, cap_points], 1)], 0)
             faces = torch.cat([faces, cap_faces], 0)
             face_tets = torch.cat([face_tets, face_tets.new_full((cap_faces.shape[0],), -1)], 0)
-    return MarchingTetsResult(vertices, faces, edges, face_tets)
+    return Topology(edges, faces, face_tets, num_edge_vertices)
 
 
 def _caps_torch(hull_faces, inside, keys, n, num_vertices):

@@ -87,14 +87,24 @@ def sample_surface(
     return np.einsum("nk,nkd->nd", bary, tri[face]), face.astype(np.int64)
 
 
-def sample_surface_torch(vertices: Any, faces: Any, n: int, generator: Any) -> Any:
+def sample_surface_torch(vertices: Any, faces: Any, n: int, generator: Any) -> tuple[Any, Any]:
     """`n` area-weighted uniform samples (n,3) on a triangle mesh, differentiable w.r.t. `vertices` (torch).
 
     As `sample_surface`, with the faces and barycentric coordinates drawn from the torch `generator` (CPU) without
-    gradient: each sample is a fixed combination of its face's corners, so it moves with them. The samples come in
-    face order (sorted uniforms inverted through the area CDF): closest-point queries on nearby faces then share
-    their tree walk, which halved the input tree's query time against samples in random order. vertices (V,3)
-    float tensor, faces (F,3) int64 tensor on the same device. A mesh of zero area samples its faces uniformly.
+    gradient (`draw_surface_samples`): each sample is a fixed combination of its face's corners, so it moves with
+    them. vertices (V,3) float tensor, faces (F,3) int64 tensor on the same device. Returns the samples (n,3) and
+    the face index (n,) int64 of each (on the device of `faces`).
+    """
+    face, bary = draw_surface_samples(vertices, faces, n, generator)
+    return points_from_barycentrics(vertices, faces, face, bary), face
+
+
+def draw_surface_samples(vertices: Any, faces: Any, n: int, generator: Any) -> tuple[Any, Any]:
+    """Faces (n,) int64 and barycentric coordinates (n,3) of `n` area-weighted uniform samples (torch, no gradient).
+
+    The samples come in face order (sorted uniforms inverted through the area CDF): closest-point queries on nearby
+    faces then share their tree walk, which halved the input tree's query time against samples in random order. A
+    mesh of zero area samples its faces uniformly. Faces on the device of `faces`, barycentrics of `vertices`.
     """
     import torch
 
@@ -108,5 +118,10 @@ def sample_surface_torch(vertices: Any, faces: Any, n: int, generator: Any) -> A
         a, b = torch.rand(2, n, generator=generator, dtype=torch.float64)
         root = a.sqrt()
         bary = torch.stack([1.0 - root, root * (1.0 - b), root * b], dim=-1).to(vertices)
-    corners = vertices[faces[face.to(faces.device)]]  # (n,3,3)
+    return face.to(faces.device), bary
+
+
+def points_from_barycentrics(vertices: Any, faces: Any, face: Any, bary: Any) -> Any:
+    """Points (n,3) at barycentric coordinates bary (n,3) of faces face (n,) of a mesh; torch, differentiable."""
+    corners = vertices[faces[face]]  # (n,3,3)
     return (bary[..., None] * corners).sum(1)
