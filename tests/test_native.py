@@ -1,7 +1,9 @@
-"""The compiled fast path of the s prediction (formats/_native.c) against the numpy/Python reference (predict.py).
+"""The compiled fast paths against their numpy/Python references: the s prediction (formats/_native.c against
+formats/predict.py) and marching tets' topology (geometry/_mt_native.c against geometry/marching_tets.py).
 
-Both must give the same neighbours (idx, d2), the same weights (bit for bit) and the same symbols, on any point
-set, whatever the residuals; the reference must still run when the extension is off or absent.
+Both must give the same neighbours (idx, d2), the same weights (bit for bit), the same symbols, on any point set
+and whatever the residuals, and the same marching tets output and manifold verdicts; the reference must still run
+when the extension is off or absent.
 """
 
 from __future__ import annotations
@@ -15,9 +17,13 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from tetweave_codec.errors import TopologyError
 from tetweave_codec.formats import predict
 from tetweave_codec.formats import quantize as Q
 from tetweave_codec.formats.tw2 import unpack_v2
+from tetweave_codec.geometry import marching_tets as MT
+from tetweave_codec.geometry.delaunay import tetrahedralize
+from tetweave_codec.geometry.marching_tets import check_manifold, marching_tets_numpy
 
 needs_native = pytest.mark.skipif(predict._native is None, reason="C extension not built")
 
@@ -280,3 +286,91 @@ def test_native_rejects_malformed_arrays_instead_of_reading_out_of_bounds():
     idx_ok[1:, 0] = 0
     with pytest.raises(ValueError, match="NaN"):  # as Python's math.floor
         native.reconstruct(idx_ok, nan_beta, res, out, -1.0, 1.0, 1 << 40)
+
+
+# ------------------------------------------------------------------------------------------------------------
+# marching tets topology (geometry/_mt_native.c against geometry/marching_tets.py)
+
+needs_mt_native = pytest.mark.skipif(MT._mt_native is None, reason="C extension not built")
+
+
+def both_mt_paths(func, *args, **kwargs):
+    """func(*args) with marching tets' compiled path on, then off; returns (native, reference) or the exceptions."""
+    out = []
+    saved = MT.NATIVE
+    try:
+        for flag in (True, False):
+            MT.NATIVE = flag
+            try:
+                out.append(func(*args, **kwargs))
+            except TopologyError as error:
+                out.append(error)
+    finally:
+        MT.NATIVE = saved
+    return out
+
+
+@needs_mt_native
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    n=st.integers(0, 300),
+    lattice=st.booleans(),
+    sh=st.booleans(),
+    hull=st.booleans(),
+    inside_fraction=st.sampled_from([0.0, 0.1, 0.5, 1.0]),
+)
+@settings(max_examples=40, deadline=None)
+def test_native_marching_tets_topology_equals_the_reference(seed, n, lattice, sh, hull, inside_fraction):
+    rng = np.random.default_rng(seed)
+    pts = rng.integers(0, 6, (n, 3)).astype(np.float64) if lattice else rng.uniform(-1, 1, (n, 3))
+    pts = np.unique(pts, axis=0)
+    if len(pts) < 5:
+        return
+    tz = tetrahedralize(pts)
+    s = np.where(rng.random(len(pts)) < inside_fraction, -1.0, 1.0) * rng.uniform(0.1, 1, len(pts))
+    c = rng.normal(0, 0.3, (len(pts), 4)) if sh else None
+    native, reference = both_mt_paths(marching_tets_numpy, pts, tz.tets, s, c, tz.hull_faces if hull else None)
+    for a, b in zip(native, reference, strict=True):
+        assert a.dtype == b.dtype and a.shape == b.shape and np.array_equal(a, b)
+        assert a.flags.writeable and a.flags.c_contiguous
+
+
+@needs_mt_native
+@given(seed=st.integers(0, 2**32 - 1), edits=st.integers(1, 4), closed=st.booleans())
+@settings(max_examples=60, deadline=None)
+def test_native_check_manifold_finds_the_references_defect(seed, edits, closed):
+    # a closed mesh from marching tets, then random damage: faces dropped, repeated, flipped or collapsed
+    rng = np.random.default_rng(seed)
+    pts = rng.uniform(-1, 1, (60, 3))
+    tz = tetrahedralize(pts)
+    s = np.linalg.norm(pts, axis=1) - 0.6
+    faces = marching_tets_numpy(pts, tz.tets, s, None, tz.hull_faces).faces.copy()
+    nv = int(faces.max()) + 1 if len(faces) else 0
+    for _ in range(edits):
+        if not len(faces):
+            break
+        i = int(rng.integers(len(faces)))
+        kind = int(rng.integers(4))
+        if kind == 0:
+            faces = np.delete(faces, i, axis=0)
+        elif kind == 1:
+            faces = np.concatenate([faces, faces[i : i + 1]])
+        elif kind == 2:
+            faces[i] = faces[i, [0, 2, 1]]
+        else:
+            faces[i, 1] = faces[i, 0]
+    native, reference = both_mt_paths(check_manifold, faces, nv, closed=closed)
+    assert type(native) is type(reference) and str(native) == str(reference)
+
+
+@needs_mt_native
+def test_native_marching_tets_rejects_out_of_range_tets():
+    inside = np.array([True, False, False, False])
+    table = MT._ACTIVE_INT
+    for bad in (4, -1):
+        with pytest.raises(ValueError):
+            MT._mt_native.topology(np.array([[0, 1, 2, bad]]), inside, 4, table, MT.TRIANGLE_TABLE)
+    with pytest.raises(ValueError):  # tets not (T, 4)
+        MT._mt_native.topology(np.array([0, 1, 2]), inside, 4, table, MT.TRIANGLE_TABLE)
+    # faces out of range: left to the reference (which decides as before)
+    assert MT._mt_native.manifold(np.array([[0, 1, 7]]), 4, True) == -1
