@@ -144,6 +144,15 @@ static void fill_block(Block *b, const CellTable *t, const int64_t c[3]) {
     b->valid = 1;
 }
 
+/* The 27 cells of a block (index (dx + 1) * 9 + (dy + 1) * 3 + dz + 1) by |dx| + |dy| + |dz|: own cell, faces,
+ * edges, corners; cell_delta: the offsets of each index. */
+static const int near_first[27] = {13, 4, 10, 12, 14, 16, 22, 1, 3, 5, 7, 9, 11, 15, 17, 19, 21, 23, 25,
+                                   0, 2, 6, 8, 18, 20, 24, 26};
+static const int cell_delta[27][3] = {
+    {-1, -1, -1}, {-1, -1, 0}, {-1, -1, 1}, {-1, 0, -1}, {-1, 0, 0}, {-1, 0, 1}, {-1, 1, -1}, {-1, 1, 0}, {-1, 1, 1},
+    {0, -1, -1},  {0, -1, 0},  {0, -1, 1},  {0, 0, -1},  {0, 0, 0},  {0, 0, 1},  {0, 1, -1},  {0, 1, 0},  {0, 1, 1},
+    {1, -1, -1},  {1, -1, 0},  {1, -1, 1},  {1, 0, -1},  {1, 0, 0},  {1, 0, 1},  {1, 1, -1},  {1, 1, 0},  {1, 1, 1}};
+
 /* Is (d, j) before (topd[m], topj[m]) in the (D, index) order? */
 #define BEFORE(d, j, m) ((d) < topd[m] || ((d) == topd[m] && (j) < topj[m]))
 
@@ -223,9 +232,55 @@ static PyObject *neighbors(PyObject *self, PyObject *args) {
                 break;
             }
             const int everything = b->total == n;
+            found = 0;
+            if (!bounded || b->total < bound_rank) {
+                /* Fewer than bound_rank points in the block: fewer than that lie within any settled neighbour's
+                 * distance, so the bound cuts nothing and only earlier points matter. Cells nearest first; once
+                 * k are found, a cell whose box lies farther than the k-th is skipped. */
+                int64_t gaps[3][3]; /* per axis, the distance from the point to the cells below, its own, above */
+                for (int ax = 0; ax < 3; ax++) {
+                    const int64_t off = p[ax] & (side - 1);
+                    gaps[ax][0] = off + 1;
+                    gaps[ax][1] = 0;
+                    gaps[ax][2] = side - off;
+                }
+                for (int q = 0; q < 27; q++) {
+                    const int s = near_first[q];
+                    const int64_t a = b->start[s], e = b->end[s] < i ? b->end[s] : i;
+                    if (a >= e) continue;
+                    if (found == k) {
+                        int64_t lb = 0;
+                        for (int ax = 0; ax < 3; ax++) {
+                            const int64_t gap = gaps[ax][cell_delta[s][ax] + 1];
+                            lb += gap * gap;
+                        }
+                        if (lb > topd[k - 1]) continue;
+                    }
+                    for (int64_t j = a; j < e; j++) {
+                        const int64_t *q3 = cells + 3 * j;
+                        int64_t dx = q3[0] - p[0], dy = q3[1] - p[1], dz = q3[2] - p[2];
+                        int64_t d = dx * dx + dy * dy + dz * dz;
+                        if (found == k && !BEFORE(d, j, found - 1)) continue;
+                        int64_t m = found < k ? found++ : k - 1;
+                        while (m > 0 && BEFORE(d, j, m - 1)) {
+                            topd[m] = topd[m - 1];
+                            topj[m] = topj[m - 1];
+                            m--;
+                        }
+                        topd[m] = d;
+                        topj[m] = j;
+                    }
+                }
+                if (!(everything || (found >= need && (need == 0 || topd[need - 1] <= r2)))) continue;
+                for (int64_t m = 0; m < k; m++) {
+                    idx[i * k + m] = m < found ? topj[m] : -1;
+                    d2[i * k + m] = m < found ? topd[m] : 0;
+                }
+                answered = 1;
+                break;
+            }
             /* every point of the block: its distance, and the k nearest earlier ones by (D, index) */
             int64_t t = 0;
-            found = 0;
             for (int s = 0; s < 27; s++) {
                 for (int64_t j = b->start[s]; j < b->end[s]; j++) {
                     const int64_t *q = cells + 3 * j;
