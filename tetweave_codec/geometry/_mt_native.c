@@ -51,6 +51,11 @@ static void radix_sort(uint64_t *a, uint64_t *tmp, int64_t m, int bits) {
     if (src != a) memcpy(a, src, (size_t)m * sizeof(uint64_t));
 }
 
+static int compare_u64(const void *a, const void *b) {
+    uint64_t x = *(const uint64_t *)a, y = *(const uint64_t *)b;
+    return (x > y) - (x < y);
+}
+
 static int get_buffer(PyObject *obj, Py_buffer *view, int itemsize, Py_ssize_t count, const char *name) {
     if (PyObject_GetBuffer(obj, view, PyBUF_C_CONTIGUOUS | PyBUF_FORMAT) != 0) return -1;
     const char *f = view->format ? view->format : "B";
@@ -142,11 +147,13 @@ static PyObject *topology(PyObject *self, PyObject *args) {
     uint64_t *packed = (uint64_t *)malloc((size_t)(m > 0 ? m : 1) * sizeof(uint64_t));
     uint64_t *tmp = (uint64_t *)malloc((size_t)(m > 0 ? m : 1) * sizeof(uint64_t));
     int64_t *inverse = (int64_t *)malloc((size_t)(m > 0 ? m : 1) * sizeof(int64_t));
-    if (!packed || !tmp || !inverse) {
+    int64_t *bucket = (int64_t *)calloc((size_t)n + 2, sizeof(int64_t));
+    if (!packed || !tmp || !inverse || !bucket) {
         PyErr_NoMemory();
         goto free_all;
     }
-    /* pass 2: the packed (key << index_bits) | occurrence of every active edge, in tet-then-edge order */
+    /* pass 2: every active edge (lo < hi), in tet-then-edge order, as (hi << index_bits) | occurrence, bucketed by
+     * lo (a counting sort): ascending lo, then ascending hi within a bucket, is ascending key lo * n + hi */
     static const int edge_a[6] = {0, 0, 0, 1, 1, 2}, edge_b[6] = {1, 2, 3, 2, 3, 3};
     int64_t occ = 0;
     for (int64_t t = 0; t < t_count; t++) {
@@ -155,19 +162,33 @@ static PyObject *topology(PyObject *self, PyObject *args) {
         for (int q = 0; q < n_act[code]; q++) {
             const int e = act[code][q];
             int64_t a = v[edge_a[e]], b = v[edge_b[e]];
-            uint64_t key = (uint64_t)(a < b ? a : b) * (uint64_t)n + (uint64_t)(a < b ? b : a);
-            packed[occ] = (key << index_bits) | (uint64_t)occ;
+            int64_t lo = a < b ? a : b, hi = a < b ? b : a;
+            packed[occ] = ((uint64_t)hi << index_bits) | (uint64_t)occ;
+            inverse[occ] = lo; /* the lo of each occurrence, until the ranks replace it */
+            bucket[lo + 2]++;
             occ++;
         }
     }
-    radix_sort(packed, tmp, m, key_bits + index_bits);
-    /* unique keys in order; inverse[occurrence] = rank of its key */
+    for (int64_t v = 2; v < n + 2; v++) bucket[v] += bucket[v - 1]; /* bucket[lo + 1]: start of bucket lo */
+    for (int64_t o = 0; o < m; o++) tmp[bucket[inverse[o] + 1]++] = packed[o]; /* now bucket[lo]: its start */
+    /* per bucket: sort by hi, then unique keys in order and inverse[occurrence] = rank of its key */
     int64_t u = 0;
     const uint64_t index_mask = ((uint64_t)1 << index_bits) - 1;
-    for (int64_t i = 0; i < m; i++) {
-        uint64_t key = packed[i] >> index_bits;
-        if (i == 0 || key != (packed[i - 1] >> index_bits)) tmp[u++] = key;
-        inverse[packed[i] & index_mask] = u - 1;
+    for (int64_t lo = 0; lo < n; lo++) {
+        uint64_t *first = tmp + bucket[lo], *last = tmp + bucket[lo + 1];
+        if (last - first > 32)
+            qsort(first, (size_t)(last - first), sizeof(uint64_t), compare_u64);
+        else
+            for (uint64_t *x = first + 1; x < last; x++) { /* insertion sort: buckets hold about 10 */
+                uint64_t value = *x, *y = x;
+                for (; y > first && y[-1] > value; y--) *y = y[-1];
+                *y = value;
+            }
+        for (uint64_t *x = first; x < last; x++) {
+            uint64_t hi = *x >> index_bits;
+            if (x == first || hi != (x[-1] >> index_bits)) packed[u++] = (uint64_t)lo * (uint64_t)n + hi;
+            inverse[*x & index_mask] = u - 1;
+        }
     }
     PyObject *o_keys = PyByteArray_FromStringAndSize(NULL, (Py_ssize_t)(8 * u));
     PyObject *o_faces = PyByteArray_FromStringAndSize(NULL, (Py_ssize_t)(24 * f_count));
@@ -178,7 +199,7 @@ static PyObject *topology(PyObject *self, PyObject *args) {
         Py_XDECREF(o_ft);
         goto free_all;
     }
-    memcpy(PyByteArray_AS_STRING(o_keys), tmp, (size_t)(8 * u));
+    memcpy(PyByteArray_AS_STRING(o_keys), packed, (size_t)(8 * u));
     int64_t *faces = (int64_t *)PyByteArray_AS_STRING(o_faces), *face_tets = (int64_t *)PyByteArray_AS_STRING(o_ft);
     /* pass 3: faces, per mixed tet its table triangles; local edge e is the tet's pos[code][e]-th occurrence */
     int64_t base = 0, f = 0;
@@ -193,6 +214,7 @@ static PyObject *topology(PyObject *self, PyObject *args) {
     }
     result = Py_BuildValue("(NNN)", o_keys, o_faces, o_ft);
 free_all:
+    free(bucket);
     free(codes);
     free(packed);
     free(tmp);
