@@ -51,11 +51,6 @@ static void radix_sort(uint64_t *a, uint64_t *tmp, int64_t m, int bits) {
     if (src != a) memcpy(a, src, (size_t)m * sizeof(uint64_t));
 }
 
-static int compare_u64(const void *a, const void *b) {
-    uint64_t x = *(const uint64_t *)a, y = *(const uint64_t *)b;
-    return (x > y) - (x < y);
-}
-
 static int get_buffer(PyObject *obj, Py_buffer *view, int itemsize, Py_ssize_t count, const char *name) {
     if (PyObject_GetBuffer(obj, view, PyBUF_C_CONTIGUOUS | PyBUF_FORMAT) != 0) return -1;
     const char *f = view->format ? view->format : "B";
@@ -109,7 +104,7 @@ static PyObject *topology(PyObject *self, PyObject *args) {
                     goto done;
                 }
     }
-    if (n > (1LL << 31)) { /* keys lo * n + hi beyond 62 bits: the reference decides */
+    if (n > (1LL << 31)) { /* vertex indices in 32 bits, keys lo * n + hi in 62: the reference decides */
         result = Py_None;
         Py_INCREF(result);
         goto done;
@@ -136,24 +131,22 @@ static PyObject *topology(PyObject *self, PyObject *args) {
         m += n_act[code];
         f_count += n_tri[code];
     }
-    const int key_bits = n > 1 ? bit_length((uint64_t)n * (uint64_t)n - 1) : 1;
-    const int index_bits = m > 1 ? bit_length((uint64_t)(m - 1)) : 1;
-    if (key_bits + index_bits > 63) {
+    if (m >= ((int64_t)1 << 32)) { /* occurrences are numbered in 32 bits here: the reference decides */
         free(codes);
         result = Py_None;
         Py_INCREF(result);
         goto done;
     }
-    uint64_t *packed = (uint64_t *)malloc((size_t)(m > 0 ? m : 1) * sizeof(uint64_t));
-    uint64_t *tmp = (uint64_t *)malloc((size_t)(m > 0 ? m : 1) * sizeof(uint64_t));
-    int64_t *inverse = (int64_t *)malloc((size_t)(m > 0 ? m : 1) * sizeof(int64_t));
-    int64_t *bucket = (int64_t *)calloc((size_t)n + 2, sizeof(int64_t));
-    if (!packed || !tmp || !inverse || !bucket) {
+    const size_t mm = (size_t)(m > 0 ? m : 1);
+    uint32_t *lo_of = (uint32_t *)malloc(mm * sizeof(uint32_t)), *hi_of = (uint32_t *)malloc(mm * sizeof(uint32_t));
+    uint32_t *by_hi = (uint32_t *)malloc(mm * sizeof(uint32_t)), *by_key = (uint32_t *)malloc(mm * sizeof(uint32_t));
+    int64_t *inverse = (int64_t *)malloc(mm * sizeof(int64_t)), *unique = (int64_t *)malloc(mm * sizeof(int64_t));
+    int64_t *count = (int64_t *)malloc(((size_t)n + 1) * sizeof(int64_t));
+    if (!lo_of || !hi_of || !by_hi || !by_key || !inverse || !unique || !count) {
         PyErr_NoMemory();
         goto free_all;
     }
-    /* pass 2: every active edge (lo < hi), in tet-then-edge order, as (hi << index_bits) | occurrence, bucketed by
-     * lo (a counting sort): ascending lo, then ascending hi within a bucket, is ascending key lo * n + hi */
+    /* pass 2: the end points lo < hi of every active edge, in tet-then-edge order */
     static const int edge_a[6] = {0, 0, 0, 1, 1, 2}, edge_b[6] = {1, 2, 3, 2, 3, 3};
     int64_t occ = 0;
     for (int64_t t = 0; t < t_count; t++) {
@@ -161,34 +154,28 @@ static PyObject *topology(PyObject *self, PyObject *args) {
         const int code = codes[t];
         for (int q = 0; q < n_act[code]; q++) {
             const int e = act[code][q];
-            int64_t a = v[edge_a[e]], b = v[edge_b[e]];
-            int64_t lo = a < b ? a : b, hi = a < b ? b : a;
-            packed[occ] = ((uint64_t)hi << index_bits) | (uint64_t)occ;
-            inverse[occ] = lo; /* the lo of each occurrence, until the ranks replace it */
-            bucket[lo + 2]++;
+            const int64_t a = v[edge_a[e]], b = v[edge_b[e]];
+            lo_of[occ] = (uint32_t)(a < b ? a : b);
+            hi_of[occ] = (uint32_t)(a < b ? b : a);
             occ++;
         }
     }
-    for (int64_t v = 2; v < n + 2; v++) bucket[v] += bucket[v - 1]; /* bucket[lo + 1]: start of bucket lo */
-    for (int64_t o = 0; o < m; o++) tmp[bucket[inverse[o] + 1]++] = packed[o]; /* now bucket[lo]: its start */
-    /* per bucket: sort by hi, then unique keys in order and inverse[occurrence] = rank of its key */
-    int64_t u = 0;
-    const uint64_t index_mask = ((uint64_t)1 << index_bits) - 1;
-    for (int64_t lo = 0; lo < n; lo++) {
-        uint64_t *first = tmp + bucket[lo], *last = tmp + bucket[lo + 1];
-        if (last - first > 32)
-            qsort(first, (size_t)(last - first), sizeof(uint64_t), compare_u64);
-        else
-            for (uint64_t *x = first + 1; x < last; x++) { /* insertion sort: buckets hold about 10 */
-                uint64_t value = *x, *y = x;
-                for (; y > first && y[-1] > value; y--) *y = y[-1];
-                *y = value;
-            }
-        for (uint64_t *x = first; x < last; x++) {
-            uint64_t hi = *x >> index_bits;
-            if (x == first || hi != (x[-1] >> index_bits)) packed[u++] = (uint64_t)lo * (uint64_t)n + hi;
-            inverse[*x & index_mask] = u - 1;
-        }
+    /* the occurrences sorted by key lo * n + hi: two stable counting sorts, by hi then by lo */
+    memset(count, 0, ((size_t)n + 1) * sizeof(int64_t));
+    for (int64_t o = 0; o < m; o++) count[hi_of[o] + 1]++;
+    for (int64_t v = 1; v <= n; v++) count[v] += count[v - 1];
+    for (int64_t o = 0; o < m; o++) by_hi[count[hi_of[o]]++] = (uint32_t)o;
+    memset(count, 0, ((size_t)n + 1) * sizeof(int64_t));
+    for (int64_t o = 0; o < m; o++) count[lo_of[o] + 1]++;
+    for (int64_t v = 1; v <= n; v++) count[v] += count[v - 1];
+    for (int64_t r = 0; r < m; r++) by_key[count[lo_of[by_hi[r]]]++] = by_hi[r];
+    /* unique keys in order; inverse[occurrence] = rank of its key */
+    int64_t u = 0, previous = -1;
+    for (int64_t r = 0; r < m; r++) {
+        const uint32_t o = by_key[r];
+        const int64_t key = (int64_t)lo_of[o] * n + hi_of[o];
+        if (key != previous) unique[u++] = previous = key;
+        inverse[o] = u - 1;
     }
     PyObject *o_keys = PyByteArray_FromStringAndSize(NULL, (Py_ssize_t)(8 * u));
     PyObject *o_faces = PyByteArray_FromStringAndSize(NULL, (Py_ssize_t)(24 * f_count));
@@ -199,7 +186,7 @@ static PyObject *topology(PyObject *self, PyObject *args) {
         Py_XDECREF(o_ft);
         goto free_all;
     }
-    memcpy(PyByteArray_AS_STRING(o_keys), packed, (size_t)(8 * u));
+    memcpy(PyByteArray_AS_STRING(o_keys), unique, (size_t)(8 * u));
     int64_t *faces = (int64_t *)PyByteArray_AS_STRING(o_faces), *face_tets = (int64_t *)PyByteArray_AS_STRING(o_ft);
     /* pass 3: faces, per mixed tet its table triangles; local edge e is the tet's pos[code][e]-th occurrence */
     int64_t base = 0, f = 0;
@@ -214,11 +201,14 @@ static PyObject *topology(PyObject *self, PyObject *args) {
     }
     result = Py_BuildValue("(NNN)", o_keys, o_faces, o_ft);
 free_all:
-    free(bucket);
     free(codes);
-    free(packed);
-    free(tmp);
+    free(lo_of);
+    free(hi_of);
+    free(by_hi);
+    free(by_key);
     free(inverse);
+    free(unique);
+    free(count);
 done:
     PyBuffer_Release(&vr);
 fail_a:
