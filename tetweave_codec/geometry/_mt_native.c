@@ -139,10 +139,11 @@ static PyObject *topology(PyObject *self, PyObject *args) {
     }
     const size_t mm = (size_t)(m > 0 ? m : 1);
     uint32_t *lo_of = (uint32_t *)malloc(mm * sizeof(uint32_t)), *hi_of = (uint32_t *)malloc(mm * sizeof(uint32_t));
+    /* little memory: every page first touched costs a fault, as much as the work on it */
     uint32_t *by_hi = (uint32_t *)malloc(mm * sizeof(uint32_t)), *by_key = (uint32_t *)malloc(mm * sizeof(uint32_t));
-    int64_t *inverse = (int64_t *)malloc(mm * sizeof(int64_t)), *unique = (int64_t *)malloc(mm * sizeof(int64_t));
     int64_t *count = (int64_t *)malloc(((size_t)n + 1) * sizeof(int64_t));
-    if (!lo_of || !hi_of || !by_hi || !by_key || !inverse || !unique || !count) {
+    PyObject *o_keys = NULL, *o_faces = NULL, *o_ft = NULL;
+    if (!lo_of || !hi_of || !by_hi || !by_key || !count) {
         PyErr_NoMemory();
         goto free_all;
     }
@@ -169,24 +170,27 @@ static PyObject *topology(PyObject *self, PyObject *args) {
     for (int64_t o = 0; o < m; o++) count[lo_of[o] + 1]++;
     for (int64_t v = 1; v <= n; v++) count[v] += count[v - 1];
     for (int64_t r = 0; r < m; r++) by_key[count[lo_of[by_hi[r]]]++] = by_hi[r];
-    /* unique keys in order; inverse[occurrence] = rank of its key */
+    /* unique keys in order (into a buffer of m keys, shrunk to u after: its untouched pages cost nothing);
+     * inverse[occurrence] = rank of its key, in the memory of by_hi (no longer needed) */
+    o_keys = PyByteArray_FromStringAndSize(NULL, (Py_ssize_t)(8 * mm));
+    if (!o_keys) goto free_all;
+    int64_t *unique = (int64_t *)PyByteArray_AS_STRING(o_keys);
+    uint32_t *inverse = by_hi;
     int64_t u = 0, previous = -1;
     for (int64_t r = 0; r < m; r++) {
         const uint32_t o = by_key[r];
         const int64_t key = (int64_t)lo_of[o] * n + hi_of[o];
         if (key != previous) unique[u++] = previous = key;
-        inverse[o] = u - 1;
+        inverse[o] = (uint32_t)(u - 1);
     }
-    PyObject *o_keys = PyByteArray_FromStringAndSize(NULL, (Py_ssize_t)(8 * u));
-    PyObject *o_faces = PyByteArray_FromStringAndSize(NULL, (Py_ssize_t)(24 * f_count));
-    PyObject *o_ft = PyByteArray_FromStringAndSize(NULL, (Py_ssize_t)(8 * f_count));
-    if (!o_keys || !o_faces || !o_ft) {
-        Py_XDECREF(o_keys);
+    o_faces = PyByteArray_FromStringAndSize(NULL, (Py_ssize_t)(24 * f_count));
+    o_ft = PyByteArray_FromStringAndSize(NULL, (Py_ssize_t)(8 * f_count));
+    if (!o_faces || !o_ft || PyByteArray_Resize(o_keys, (Py_ssize_t)(8 * u))) {
+        Py_CLEAR(o_keys);
         Py_XDECREF(o_faces);
         Py_XDECREF(o_ft);
         goto free_all;
     }
-    memcpy(PyByteArray_AS_STRING(o_keys), unique, (size_t)(8 * u));
     int64_t *faces = (int64_t *)PyByteArray_AS_STRING(o_faces), *face_tets = (int64_t *)PyByteArray_AS_STRING(o_ft);
     /* pass 3: faces, per mixed tet its table triangles; local edge e is the tet's pos[code][e]-th occurrence */
     int64_t base = 0, f = 0;
@@ -194,7 +198,7 @@ static PyObject *topology(PyObject *self, PyObject *args) {
         const int code = codes[t];
         for (int q = 0; q < n_tri[code]; q++) {
             const int64_t *row = tri + 6 * code + 3 * tri_row[code][q];
-            for (int c = 0; c < 3; c++) faces[3 * f + c] = inverse[base + pos[code][row[c]]];
+            for (int c = 0; c < 3; c++) faces[3 * f + c] = (int64_t)inverse[base + pos[code][row[c]]];
             face_tets[f++] = t;
         }
         base += n_act[code];
@@ -206,8 +210,6 @@ free_all:
     free(hi_of);
     free(by_hi);
     free(by_key);
-    free(inverse);
-    free(unique);
     free(count);
 done:
     PyBuffer_Release(&vr);
