@@ -16,8 +16,13 @@ Per file, median of `--repeats` runs after one warm-up, with the clock of `--clo
   clock, whatever `--clock` says), so interpreter start-up and imports count;
 * ratios of unpack, total and CLI to the Delaunay time of the same file.
 
+`--native both` times every file twice in turn, with the compiled fast paths (formats/_native.c,
+geometry/_mt_native.c) and with the numpy/Python reference code alone (`TETWEAVE_NATIVE=0` for the CLI): the
+before/after comparison in one run. `off` and `on` time one of them (default: `on`, whatever is built).
+
     python -m tetweave_codec.benchmarks.decode_speed --threads 1
     python -m tetweave_codec.benchmarks.decode_speed --sizes 40k --meshes fandisk,spot --repeats 9 --no-encode
+    python -m tetweave_codec.benchmarks.decode_speed --threads 1 --no-encode --sizes 10k,40k --clock cpu --native both
 """
 
 from __future__ import annotations
@@ -67,6 +72,15 @@ def ensure_file(mesh: Path, size: str, cache: Path, encode: bool) -> Path | None
     return path
 
 
+def set_native(on: bool) -> None:
+    """Switch the compiled fast paths of the decoder on (where built) or off (the numpy/Python reference)."""
+    from tetweave_codec.formats import predict
+    from tetweave_codec.geometry import marching_tets
+
+    predict.NATIVE = on and predict._native is not None
+    marching_tets.NATIVE = on and marching_tets._mt_native is not None
+
+
 def time_api(data: bytes, repeats: int, clock: str) -> dict:
     """Median seconds per stage of `decode_detailed` and of the s prediction alone over `repeats` runs."""
     from tetweave_codec.decoder import decode_detailed
@@ -94,16 +108,17 @@ def time_api(data: bytes, repeats: int, clock: str) -> dict:
     return med
 
 
-def time_cli(path: Path, repeats: int) -> float:
+def time_cli(path: Path, repeats: int, native: bool = True) -> float:
     """Median wall seconds of `tetweave decode path -o tmp.ply` in a fresh process (start to file written)."""
+    env = dict(os.environ, TETWEAVE_NATIVE="1" if native else "0")
     times = []
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "out.ply"
         cmd = [sys.executable, "-m", "tetweave_codec.cli.main", "decode", str(path), "-o", str(out)]
-        subprocess.run(cmd, check=True, capture_output=True)  # warm-up: file system caches
+        subprocess.run(cmd, check=True, capture_output=True, env=env)  # warm-up: file system caches
         for _ in range(repeats):
             start = time.perf_counter()
-            subprocess.run(cmd, check=True, capture_output=True)
+            subprocess.run(cmd, check=True, capture_output=True, env=env)
             times.append(time.perf_counter() - start)
     return statistics.median(times)
 
@@ -124,6 +139,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="cap numpy/BLAS/OpenMP threads (0: library defaults) (default: 0)")  # fmt: skip
     parser.add_argument("--clock", choices=("wall", "cpu"), default="wall",
                         help="wall-clock or process CPU time of the API stages (default: wall)")  # fmt: skip
+    parser.add_argument("--native", choices=("on", "off", "both"), default="on",
+                        help="compiled fast paths on, off (numpy/Python reference) or both (default: on)")  # fmt: skip
     args = parser.parse_args(argv)
     if args.threads:
         # Before numpy is imported (lazily, below; the CLI subprocesses inherit them): pools read these at start-up.
@@ -136,7 +153,7 @@ def main(argv: list[str] | None = None) -> int:
     cache = args.files or default_cache()
     print(f"# decode speed ({args.clock} clock for the API stages, wall for the CLI): real v2 files from {cache}, "
           f"median of {args.repeats} (CLI {args.cli_repeats})")  # fmt: skip
-    header = ["file", "bytes", "points", "faces", "unpack ms", "s pred ms", "Delaunay ms", "marching tets ms",
+    header = ["file", "bytes", "points", "faces", "code", "unpack ms", "s pred ms", "Delaunay ms", "marching tets ms",
               "total ms", "unpack / Delaunay", "total / Delaunay", "CLI ms", "CLI / Delaunay"]  # fmt: skip
     print("| " + " | ".join(header) + " |")
     print("|---|" + "|".join("---:" for _ in header[1:]) + "|")
@@ -146,15 +163,18 @@ def main(argv: list[str] | None = None) -> int:
             if path is None:
                 continue
             data = path.read_bytes()
-            t = time_api(data, args.repeats, args.clock)
-            dl = t["delaunay"]
-            cli = time_cli(path, args.cli_repeats) if args.cli_repeats else float("nan")
-            s_pred = f"{1e3 * t['s_pred']:.1f}" if "s_pred" in t else "-"
-            ms = {k: f"{1e3 * t[k]:.1f}" for k in ("unpack", "delaunay", "marching_tets", "total")}
-            row = [path.stem, f"{len(data):,}", f"{t['points']:,}", f"{t['faces']:,}", ms["unpack"], s_pred,
-                   ms["delaunay"], ms["marching_tets"], ms["total"], f"{t['unpack'] / dl:.2f}",
-                   f"{t['total'] / dl:.2f}", f"{1e3 * cli:.0f}", f"{cli / dl:.1f}"]  # fmt: skip
-            print("| " + " | ".join(row) + " |", flush=True)
+            for native in {"on": (True,), "off": (False,), "both": (False, True)}[args.native]:
+                set_native(native)
+                t = time_api(data, args.repeats, args.clock)
+                dl = t["delaunay"]
+                cli = time_cli(path, args.cli_repeats, native) if args.cli_repeats else float("nan")
+                s_pred = f"{1e3 * t['s_pred']:.1f}" if "s_pred" in t else "-"
+                ms = {k: f"{1e3 * t[k]:.1f}" for k in ("unpack", "delaunay", "marching_tets", "total")}
+                row = [path.stem, f"{len(data):,}", f"{t['points']:,}", f"{t['faces']:,}",
+                       "compiled" if native else "reference", ms["unpack"], s_pred, ms["delaunay"],
+                       ms["marching_tets"], ms["total"], f"{t['unpack'] / dl:.2f}", f"{t['total'] / dl:.2f}",
+                       f"{1e3 * cli:.0f}", f"{cli / dl:.1f}"]  # fmt: skip
+                print("| " + " | ".join(row) + " |", flush=True)
     return 0
 
 

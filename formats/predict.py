@@ -17,15 +17,29 @@ Everything here is exact and reproducible by an independent decoder:
   symbol floor(a) clamped to the symbol range, symbol = prediction + residual. All arithmetic is IEEE 754
   binary64 with every operation rounded, in the order written here (numpy applies each elementwise operation
   separately, with no fused multiply-add; Python floats are binary64).
+
+A compiled fast path (formats/_native.c, built by setup.py when a C compiler is there) runs the neighbour search,
+the weights and the sequential pass; this module stays the reference, and the fallback whenever the extension is
+absent or `NATIVE` is False (environment TETWEAVE_NATIVE=0). Both must give the same neighbours, weights and
+symbols bit for bit (tests/test_native.py): the C code is built with -ffp-contract=off and without -ffast-math.
 """
 
 from __future__ import annotations
 
 import math
+import os
 
 import numpy as np
 
 from .quantize import S_SYMBOL_LIMIT, morton_keys
+
+try:  # the compiled fast path (optional; identical output)
+    from . import _native
+except ImportError:  # not built (no C compiler at install time): the numpy/Python code below
+    _native = None
+# Whether causal_neighbors and reconstruct use the compiled path. Measured (fandisk 40 KB, 18K points, CPU time):
+# see README.md, "Decode".
+NATIVE = _native is not None and os.environ.get("TETWEAVE_NATIVE", "1") != "0"
 
 K_NEIGHBORS = 8
 # Candidate widths W: a point's neighbours are its K nearest earlier points among the points strictly closer than
@@ -86,6 +100,15 @@ def causal_neighbors(cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     morton = morton_keys(cells).astype(np.int64)  # < 2**48
     if np.any(morton[1:] <= morton[:-1]):
         raise ValueError("cells must be unique and in canonical order (ascending Morton code)")
+    if NATIVE and 0 <= int(cells.min()) and int(cells.max()) < 1 << 16:  # beyond 16 bits Morton codes alias
+        over = np.empty(n, dtype=np.int64)
+        n_over = _native.neighbors(
+            np.ascontiguousarray(cells), morton, idx, d2, over, K_NEIGHBORS, QUERY_WIDTHS[-1], _first_level(morton),
+            GRID_MAX_CANDIDATES,
+        )  # fmt: skip
+        if n_over:
+            _tree_rows(cells, over[:n_over], idx, d2)
+        return idx, d2
     axes = [np.ascontiguousarray(cells[:, a]) for a in range(3)]
     rows, over = np.arange(n), []
     level = _first_level(morton)
@@ -263,6 +286,11 @@ def predictor_weights(cells: np.ndarray, idx: np.ndarray, d2: np.ndarray) -> np.
     """
     cells = np.asarray(cells, dtype=np.int64)
     n, k = idx.shape
+    if NATIVE:
+        beta = np.empty((n, k))
+        _native.weights(np.ascontiguousarray(cells), np.ascontiguousarray(idx), np.ascontiguousarray(d2), beta,
+                        RIDGE_ABSOLUTE)  # fmt: skip
+        return beta
     # slot-major (K, N) arrays, one contiguous row per slot: the sums below run over the slots in order
     have = (idx >= 0).T
     safe = np.where(have, idx.T, 0)
@@ -327,9 +355,15 @@ def residuals(cells: np.ndarray, s_sym: np.ndarray) -> np.ndarray:
 
 def reconstruct(cells: np.ndarray, residual: np.ndarray) -> np.ndarray:
     """Decoder side: residuals (N,) int64 -> s symbols (N,) int64 (not range-checked; the caller checks)."""
-    residual = np.asarray(residual, dtype=np.int64)
+    residual = np.ascontiguousarray(residual, dtype=np.int64)
     n = len(residual)
     idx, beta = _predictor(cells)
+    if NATIVE:
+        out = np.empty(n, dtype=np.int64)
+        _native.reconstruct(
+            idx, beta, residual, out, -float(S_SYMBOL_LIMIT), float(S_SYMBOL_LIMIT - 1), _RESIDUAL_BOUND
+        )
+        return out
     # A corrupted residual can leave the symbol range; bounding it here keeps every u finite (the caller rejects
     # the symbols). Missing neighbours (idx -1, beta 0) read u[n] = 0.0, which adds +0.0: the sum is unchanged.
     res_l = np.clip(residual, -_RESIDUAL_BOUND, _RESIDUAL_BOUND).tolist()

@@ -25,7 +25,10 @@ Two implementations share the tables and the vertex ordering (vertices sorted by
 
 * `marching_tets`: torch, differentiable w.r.t. points, s and c; topology under no_grad with 1-D int64 edge
   keys (torch.unique on keys; ``unique(dim=0)`` on edge pairs is 10-18x slower).
-* `marching_tets_numpy`: numpy float64, no autograd; what the decoder uses (deterministic, no BLAS).
+* `marching_tets_numpy`: numpy float64, no autograd; what the decoder uses (deterministic, no BLAS). Its integer
+  topology (active edges, their order, faces) and `check_manifold` run in a compiled fast path
+  (geometry/_mt_native.c, built by setup.py when a C compiler is there) with the same output; the numpy code here
+  stays the reference and the fallback (extension absent, `NATIVE` False or TETWEAVE_NATIVE=0).
 
 The output is a closed (with ``hull_faces``) 2-manifold only if the tets form a proper tetrahedralization (each
 triangle shared by at most two tets, in opposite orientations; `delaunay` guarantees it). `marching_tets_numpy`
@@ -36,6 +39,7 @@ integer keys).
 
 from __future__ import annotations
 
+import os
 from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
@@ -45,6 +49,13 @@ from tetweave_codec.geometry.sh import degree_from_num_coeffs, sh_basis_terms, s
 
 if TYPE_CHECKING:  # torch is imported lazily: the numpy decoder path must not pay for it
     import torch
+
+try:  # the compiled topology (optional; identical output)
+    from tetweave_codec.geometry import _mt_native
+except ImportError:  # not built: the numpy code below
+    _mt_native = None
+# Whether marching_tets_numpy and check_manifold use the compiled path. Measured: README.md, "Decode".
+NATIVE = _mt_native is not None and os.environ.get("TETWEAVE_NATIVE", "1") != "0"
 
 # Local edges of a tet as pairs of local vertex indices: edge e connects TET_EDGES[e, 0] and TET_EDGES[e, 1].
 TET_EDGES = np.array([[0, 1], [0, 2], [0, 3], [1, 2], [1, 3], [2, 3]], dtype=np.int64)
@@ -79,6 +90,14 @@ TRIANGLE_TABLE = np.array(
 # ACTIVE_EDGE_TABLE[code, e]: local edge e has endpoints on different sides in case `code`.
 ACTIVE_EDGE_TABLE = ((np.arange(16)[:, None] >> TET_EDGES[:, 0]) & 1) != (
     (np.arange(16)[:, None] >> TET_EDGES[:, 1]) & 1
+)
+
+# ACTIVE_EDGE_TABLE as integers and the messages of check_manifold's three defects, shared with the compiled path.
+_ACTIVE_INT = ACTIVE_EDGE_TABLE.astype(np.int64)
+_MANIFOLD_ERRORS = (
+    "marching tets produced a degenerate triangle: the tetrahedralization is not proper",
+    "marching tets used a directed edge twice: the tetrahedralization is not proper",
+    "marching tets left an edge without its twin: the tetrahedralization is not proper",
 )
 
 # Convex hull caps. A hull triangle (a, b, c) (outward) has 6 slots: 0-2 the cap vertices at a, b, c (if
@@ -243,28 +262,16 @@ def marching_tets_numpy(
     points = np.asarray(points, dtype=np.float64)
     s = np.asarray(s, dtype=np.float64)
     c = None if c is None else np.asarray(c, dtype=np.float64)
-    tets = np.asarray(tets, dtype=np.int64)
+    tets = np.ascontiguousarray(tets, dtype=np.int64)
     n = len(points)
     inside = s < 0
-    # The 4 inside flags of a tet as the bytes of one little-endian uint32; mixed tets: not 0, not all ones.
-    occ = inside.view(np.uint8)[tets].view("<u4").reshape(-1)
-    tet_idx = np.flatnonzero((occ != 0) & (occ != 0x01010101))
-    occ = occ[tet_idx]
-    code = ((occ & 1) | ((occ >> 7) & 2) | ((occ >> 14) & 4) | ((occ >> 21) & 8)).astype(np.int64)
-    mixed = tets[tet_idx]
-    key = np.empty((len(mixed), 6), dtype=np.int64)
-    for e, (a, b) in enumerate(TET_EDGES.tolist()):
-        va, vb = mixed[:, a], mixed[:, b]
-        key[:, e] = np.minimum(va, vb) * n + np.maximum(va, vb)
-    active = ACTIVE_EDGE_TABLE[code]
-    keys, inverse = _unique_inverse(key[active], n)
-    slot = np.full(active.shape, -1, dtype=np.int64)
-    slot[active] = inverse
-    tri = TRIANGLE_TABLE[code]
-    has = tri[..., 0] >= 0
-    # Flat indices into slot: tet row * 6 + local edge.
-    faces = slot.ravel()[(np.arange(len(slot), dtype=np.int64) * 6)[:, None, None] + tri][has]
-    face_tets = np.broadcast_to(tet_idx[:, None], has.shape)[has]
+    topo = _mt_native.topology(tets, inside, n, _ACTIVE_INT, TRIANGLE_TABLE) if NATIVE else None
+    if topo is not None:
+        keys = np.frombuffer(topo[0], dtype=np.int64)
+        faces = np.frombuffer(topo[1], dtype=np.int64).reshape(-1, 3)
+        face_tets = np.frombuffer(topo[2], dtype=np.int64)
+    else:
+        keys, faces, face_tets = _topology_numpy(tets, inside, n)
     lo, hi = np.divmod(keys, n) if n else (keys, keys)
     lo_in = inside[lo]
     edges = np.stack([np.where(lo_in, lo, hi), np.where(lo_in, hi, lo)], 1)
@@ -286,6 +293,31 @@ def marching_tets_numpy(
     )
 
 
+def _topology_numpy(tets: np.ndarray, inside: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The reference topology: sorted unique active edge keys lo * n + hi (U,) (lo < hi), faces (F, 3) into them,
+    and the tet of each face (F,); faces by tet, then table order."""
+    # The 4 inside flags of a tet as the bytes of one little-endian uint32; mixed tets: not 0, not all ones.
+    occ = inside.view(np.uint8)[tets].view("<u4").reshape(-1)
+    tet_idx = np.flatnonzero((occ != 0) & (occ != 0x01010101))
+    occ = occ[tet_idx]
+    code = ((occ & 1) | ((occ >> 7) & 2) | ((occ >> 14) & 4) | ((occ >> 21) & 8)).astype(np.int64)
+    mixed = tets[tet_idx]
+    key = np.empty((len(mixed), 6), dtype=np.int64)
+    for e, (a, b) in enumerate(TET_EDGES.tolist()):
+        va, vb = mixed[:, a], mixed[:, b]
+        key[:, e] = np.minimum(va, vb) * n + np.maximum(va, vb)
+    active = ACTIVE_EDGE_TABLE[code]
+    keys, inverse = _unique_inverse(key[active], n)
+    slot = np.full(active.shape, -1, dtype=np.int64)
+    slot[active] = inverse
+    tri = TRIANGLE_TABLE[code]
+    has = tri[..., 0] >= 0
+    # Flat indices into slot: tet row * 6 + local edge.
+    faces = slot.ravel()[(np.arange(len(slot), dtype=np.int64) * 6)[:, None, None] + tri][has]
+    face_tets = np.broadcast_to(tet_idx[:, None], has.shape)[has]
+    return keys, faces, face_tets
+
+
 def check_manifold(faces: np.ndarray, num_vertices: int, closed: bool = True) -> None:
     """Raise `TopologyError` unless every directed edge of `faces` is used once (and, if `closed`, has its twin).
 
@@ -297,10 +329,16 @@ def check_manifold(faces: np.ndarray, num_vertices: int, closed: bool = True) ->
     """
     if not len(faces):
         return
+    if NATIVE:
+        status = _mt_native.manifold(np.ascontiguousarray(faces, dtype=np.int64), int(num_vertices), closed)
+        if status >= 0:  # -1: not decided there (indices out of range, keys beyond 63 bits)
+            if status:
+                raise TopologyError(_MANIFOLD_ERRORS[status - 1])
+            return
     tail = faces.ravel()
     head = faces[:, [1, 2, 0]].ravel()
     if np.any(tail == head):
-        raise TopologyError("marching tets produced a degenerate triangle: the tetrahedralization is not proper")
+        raise TopologyError(_MANIFOLD_ERRORS[0])
     # One sort: each directed edge as (undirected key << 1) | direction. Closed and oriented means every
     # undirected key appears exactly twice, once per direction: pairs (2k, 2k + 1) of the sorted array.
     forward = tail * num_vertices + head
@@ -308,11 +346,11 @@ def check_manifold(faces: np.ndarray, num_vertices: int, closed: bool = True) ->
     packed = (np.minimum(forward, backward) << 1) | (forward > backward)
     packed.sort()
     if np.any(packed[1:] == packed[:-1]):
-        raise TopologyError("marching tets used a directed edge twice: the tetrahedralization is not proper")
+        raise TopologyError(_MANIFOLD_ERRORS[1])
     if closed:
         first, second = packed[0::2], packed[1::2]
         if len(first) != len(second) or not np.array_equal(first | 1, second) or np.any(first & 1):
-            raise TopologyError("marching tets left an edge without its twin: the tetrahedralization is not proper")
+            raise TopologyError(_MANIFOLD_ERRORS[2])
 
 
 def _unique_inverse(keys: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:

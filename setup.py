@@ -1,0 +1,29 @@
+"""Build of the optional C extensions (the rest of the metadata is in pyproject.toml).
+
+* `tetweave_codec.formats._native` (formats/_native.c): the s prediction's decoder loops; formats/predict.py is
+  the reference.
+* `tetweave_codec.geometry._mt_native` (tetweave_codec/geometry/_mt_native.c): the integer topology of marching
+  tets; geometry/marching_tets.py is the reference.
+
+Each Python module falls back to its numpy/Python code when its extension is absent, with identical output.
+`optional=True`: a machine without a C compiler still installs. The flags keep the binary64 results identical to
+the reference's: no fused multiply-add contraction, no -ffast-math.
+"""
+
+import sys
+
+from setuptools import Extension, setup
+
+FLAGS = [] if sys.platform == "win32" else ["-O2", "-ffp-contract=off", "-fno-fast-math"]
+
+setup(
+    ext_modules=[
+        Extension("tetweave_codec.formats._native", ["formats/_native.c"], extra_compile_args=FLAGS, optional=True),
+        Extension(
+            "tetweave_codec.geometry._mt_native",
+            ["tetweave_codec/geometry/_mt_native.c"],
+            extra_compile_args=FLAGS,
+            optional=True,
+        ),
+    ]
+)
