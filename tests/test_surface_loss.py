@@ -158,3 +158,17 @@ def test_normal_term_gradient_untilts_the_mesh():
     stepped = (vt - 0.05 * vt.grad / vt.grad.norm()).detach()
     after = target.loss(stepped, torch.from_numpy(tf), torch.Generator().manual_seed(0)).normals.item()
     assert after < 1.0 - np.cos(0.3) - 1e-4
+
+
+def test_normal_term_gradient_is_bounded_on_a_sliver():
+    # a face of doubled area 1e-12 (a needle): its unit normal's gradient would be ~1e12; the term bounds it
+    from tetweave_codec.fit.surface_loss import MIN_NORMAL_CROSS, _unit_normals
+
+    v = torch.tensor([[0.0, 0.0, 0.0], [1e-6, 0.0, 0.0], [0.0, 1e-6, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+    v = v.double().requires_grad_(True)
+    f = torch.tensor([[0, 1, 2], [0, 3, 4]])
+    n = _unit_normals(v, f)
+    assert torch.allclose(n[1], torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64))  # a normal face: unit
+    assert n[0].norm().item() == pytest.approx(1e-12 / MIN_NORMAL_CROSS)  # the sliver: scaled, not normalized
+    n[:, 2].sum().backward()
+    assert torch.isfinite(v.grad).all() and v.grad.abs().max().item() < 1e4

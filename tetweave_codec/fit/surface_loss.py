@@ -32,15 +32,30 @@ from torch import Tensor
 
 from tetweave_codec.geometry.triangles import (
     draw_surface_samples,
+    face_cross,
     face_normals,
     points_from_barycentrics,
     sample_surface,
+    unit_vectors,
 )
 
 # Smoothing of sqrt at 0 (normalized units): far below any distance the fit resolves.
 _EPS = 1e-6
 # Calls for which the current mesh's AABB tree is reused while the mesh keeps the same faces (see `_MeshTree`).
 TREE_REUSE_CALLS = 4
+
+
+# Twice the area (normalized units^2) below which a mesh face's normal is scaled by this constant instead of its own
+# length: a unit normal's gradient grows as 1 / |cross|, and marching tets makes faces down to ~1e-11 (fandisk, 4K
+# points); none above it changes. 1e-9 is the doubled area of a triangle with sides ~4e-5, a hundredth of a cell.
+MIN_NORMAL_CROSS = 1e-9
+
+
+def _unit_normals(vertices: Tensor, faces: Tensor) -> Tensor:
+    """Unit face normals (F,3) of the mesh, differentiable, with a bounded gradient on near-degenerate faces."""
+    cross = face_cross(vertices, faces)
+    big = (cross * cross).sum(-1, keepdim=True) > MIN_NORMAL_CROSS**2
+    return torch.where(big, unit_vectors(cross), cross / MIN_NORMAL_CROSS)
 
 
 class SurfaceLoss(NamedTuple):
@@ -96,7 +111,7 @@ class SurfaceTarget:
         on_faces = points_from_barycentrics(vertices, faces, sample_face, bary)
         cp, input_face = self.closest_points(on_faces.detach().cpu().numpy().astype(np.float64))
         to_input = torch.sqrt(((on_faces - torch.from_numpy(cp).to(vertices)) ** 2).sum(-1) + _EPS**2).mean()
-        mesh_normals = face_normals(vertices, faces)  # (F,3), differentiable
+        mesh_normals = _unit_normals(vertices, faces)
         n_in = torch.from_numpy(self.face_normals[input_face]).to(vertices)
         normals_to_input = 1.0 - (mesh_normals[sample_face] * n_in).sum(-1).abs().mean()
 
