@@ -156,6 +156,19 @@ static const int cell_delta[27][3] = {
 /* Is (d, j) before (topd[m], topj[m]) in the (D, index) order? */
 #define BEFORE(d, j, m) ((d) < topd[m] || ((d) == topd[m] && (j) < topj[m]))
 
+/* Offer candidate (d, j) to the list topd/topj of the *found (at most k) nearest so far, kept sorted by (D, index). */
+static inline void offer(int64_t *topd, int64_t *topj, int64_t *found, int64_t k, int64_t d, int64_t j) {
+    if (*found == k && !BEFORE(d, j, *found - 1)) return;
+    int64_t m = *found < k ? (*found)++ : k - 1;
+    while (m > 0 && BEFORE(d, j, m - 1)) {
+        topd[m] = topd[m - 1];
+        topj[m] = topj[m - 1];
+        m--;
+    }
+    topd[m] = d;
+    topj[m] = j;
+}
+
 static PyObject *neighbors(PyObject *self, PyObject *args) {
     PyObject *o_cells, *o_morton, *o_idx, *o_d2, *o_over;
     Py_ssize_t k, bound_rank, first_level, cap;
@@ -259,16 +272,7 @@ static PyObject *neighbors(PyObject *self, PyObject *args) {
                     for (int64_t j = a; j < e; j++) {
                         const int64_t *q3 = cells + 3 * j;
                         int64_t dx = q3[0] - p[0], dy = q3[1] - p[1], dz = q3[2] - p[2];
-                        int64_t d = dx * dx + dy * dy + dz * dz;
-                        if (found == k && !BEFORE(d, j, found - 1)) continue;
-                        int64_t m = found < k ? found++ : k - 1;
-                        while (m > 0 && BEFORE(d, j, m - 1)) {
-                            topd[m] = topd[m - 1];
-                            topj[m] = topj[m - 1];
-                            m--;
-                        }
-                        topd[m] = d;
-                        topj[m] = j;
+                        offer(topd, topj, &found, k, dx * dx + dy * dy + dz * dz, j);
                     }
                 }
                 if (!(everything || (found >= need && (need == 0 || topd[need - 1] <= r2)))) continue;
@@ -287,16 +291,7 @@ static PyObject *neighbors(PyObject *self, PyObject *args) {
                     int64_t dx = q[0] - p[0], dy = q[1] - p[1], dz = q[2] - p[2];
                     int64_t d = dx * dx + dy * dy + dz * dz; /* < 3 * 2**32 */
                     dist[t++] = d;
-                    if (j >= i) continue;
-                    if (found == k && !BEFORE(d, j, found - 1)) continue;
-                    int64_t m = found < k ? found++ : k - 1;
-                    while (m > 0 && BEFORE(d, j, m - 1)) {
-                        topd[m] = topd[m - 1];
-                        topj[m] = topj[m - 1];
-                        m--;
-                    }
-                    topd[m] = d;
-                    topj[m] = j;
+                    if (j < i) offer(topd, topj, &found, k, d, j);
                 }
             }
             /* Settled when the block holds every point, or the min(i, k) nearest earlier points lie within the
