@@ -31,6 +31,7 @@ from tetweave_codec.errors import TetweaveError
 from tetweave_codec.fit.config import FitConfig
 from tetweave_codec.fit.finish import FinishResult, finish
 from tetweave_codec.fit.initialize import initial_state_pinned, random_state
+from tetweave_codec.fit.optim import set_deterministic
 from tetweave_codec.fit.resample import resample, voxel_importance
 from tetweave_codec.fit.step import (
     FitContext,
@@ -222,11 +223,11 @@ class deterministic_torch:
             torch.are_deterministic_algorithms_enabled(),
             torch.is_deterministic_algorithms_warn_only_enabled(),
         )
-        torch.use_deterministic_algorithms(True, warn_only=True)
+        set_deterministic(True, warn_only=True)
         return self
 
     def __exit__(self, *exc):
-        torch.use_deterministic_algorithms(self._was[0], warn_only=self._was[1])
+        set_deterministic(self._was[0], warn_only=self._was[1])
         return False
 
 

@@ -16,6 +16,7 @@ from torch import Tensor
 
 from tetweave_codec.fit import losses
 from tetweave_codec.fit.config import FitConfig, LearningRates
+from tetweave_codec.fit.optim import Adam
 from tetweave_codec.fit.surface_loss import SurfaceTarget
 from tetweave_codec.fit.targets import Targets
 from tetweave_codec.geometry.delaunay import tetrahedralize
@@ -78,10 +79,8 @@ class Params:
         )
         self.s = torch.tensor(np.asarray(s), dtype=torch.float32, device=device, requires_grad=True)
         self.c = torch.tensor(np.asarray(c), dtype=torch.float32, device=device, requires_grad=True)
-        self.opt_sc = torch.optim.AdamW(
-            [{"params": [self.s], "lr": lr.s}, {"params": [self.c], "lr": lr.c}], weight_decay=0.0
-        )
-        self.opt_p = torch.optim.AdamW([self.points], lr=lr.points, weight_decay=0.0) if optimize_points else None
+        self.opt_sc = Adam([{"params": [self.s], "lr": lr.s}, {"params": [self.c], "lr": lr.c}])
+        self.opt_p = Adam([{"params": [self.points], "lr": lr.points}]) if optimize_points else None
 
     def numpy(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """points (N,3) float64, s (N,) float32, c (N,q) float32."""
