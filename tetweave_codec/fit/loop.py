@@ -30,9 +30,17 @@ from torch import Tensor
 from tetweave_codec.errors import TetweaveError
 from tetweave_codec.fit.config import FitConfig
 from tetweave_codec.fit.finish import FinishResult, finish
-from tetweave_codec.fit.initialize import initial_state_pinned, random_state
+from tetweave_codec.fit.initialize import (
+    N_CORNERS,
+    SHELL,
+    SHELL_GAP,
+    UNIFORM_FRACTION,
+    initial_state_pinned,
+    random_state,
+)
 from tetweave_codec.fit.optim import set_deterministic
-from tetweave_codec.fit.resample import resample, voxel_importance
+from tetweave_codec.fit.relocate import cheapest_points
+from tetweave_codec.fit.resample import NearSurface, resample, voxel_importance
 from tetweave_codec.fit.step import (
     FitContext,
     Grid,
@@ -50,12 +58,15 @@ from tetweave_codec.formats.quantize import GRID_BOUND
 from tetweave_codec.geometry.active import active_mask, one_ring_mask
 from tetweave_codec.geometry.delaunay import resolve_backend
 from tetweave_codec.geometry.sh import check_degree, num_coeffs
+from tetweave_codec.geometry.triangles import sample_surface
 from tetweave_codec.render import render_maps
 
 # Voxel grid of the error-driven resampling (paper Appendix A: 32^3).
 IMPORTANCE_RESOLUTION = 32
 # Views rendered to estimate the resampling importance.
 IMPORTANCE_VIEWS = 8
+# Samples per direction of the 3-D importance (Schedule.importance "distance").
+IMPORTANCE_SAMPLES = 100_000
 
 
 @dataclass
@@ -75,7 +86,8 @@ class FitResult:
 
 
 def _importance(params: Params, grid: Grid, ctx: FitContext) -> tuple[Tensor, Tensor, Tensor] | None:
-    """Voxel importance from the normal-map error of the current mesh (paper eq. importance).
+    """Voxel importance: the current mesh's distance to the input where the 3-D term is on (`_distance_importance`),
+    else the normal-map error of renders (paper eq. importance).
 
     Returns (grid (R,R,R), bbox_min (3,), bbox_max (3,)) or None when the current mesh is empty.
     """
@@ -83,6 +95,8 @@ def _importance(params: Params, grid: Grid, ctx: FitContext) -> tuple[Tensor, Te
         mt = extract(params.points, params.s, params.c, grid)
         if mt.faces.shape[0] == 0:
             return None
+        if ctx.surface is not None:
+            return _distance_importance(mt.vertices, mt.faces, ctx)
         n = min(IMPORTANCE_VIEWS, len(ctx.targets))
         views = torch.randperm(len(ctx.targets), generator=ctx.generator)[:n].to(ctx.device)
         cams, target_maps = ctx.targets.select(views)
@@ -98,22 +112,72 @@ def _importance(params: Params, grid: Grid, ctx: FitContext) -> tuple[Tensor, Te
         return importance, lo, hi
 
 
+def _distance_importance(vertices: Tensor, faces: Tensor, ctx: FitContext) -> tuple[Tensor, Tensor, Tensor]:
+    """Voxel importance = mean point-to-surface distance of the samples in each voxel, both directions: area
+    samples of the mesh (vertices (V,3), faces (F,3)) to the input, and input samples to the mesh.
+
+    The metric's own error, where renders at 160 px see normals only at pixel scale. Measured alone it is within
+    the fit's seed-to-seed spread (it decides where the few passive points go); with relocation it decides where
+    a sixth of the points go (benchmarks/results/relocation.md).
+    """
+    import igl
+
+    v = vertices.detach().cpu().numpy().astype(np.float64)
+    f = faces.detach().cpu().numpy().astype(np.int64)
+    seed = int(torch.randint(0, 2**31 - 1, (1,), generator=ctx.generator))
+    on_mesh, _ = sample_surface(v, f, IMPORTANCE_SAMPLES, seed)
+    cp, _ = ctx.surface.closest_points(on_mesh)
+    q = ctx.surface.samples[:: max(1, len(ctx.surface.samples) // IMPORTANCE_SAMPLES)]
+    tree = igl.AABB()
+    tree.init(v, f)
+    d_q, _, _ = tree.squared_distance(v, f, np.ascontiguousarray(q))
+    world = np.concatenate([on_mesh, q])
+    error = np.concatenate([np.linalg.norm(on_mesh - cp, axis=1), np.sqrt(np.maximum(d_q, 0.0)).reshape(-1)])
+    lo = vertices.min(0).values
+    hi = vertices.max(0).values
+    pad = 0.02 * (hi - lo).max().clamp_min(1e-3)
+    lo, hi = lo - pad, hi + pad
+    importance = voxel_importance(
+        torch.from_numpy(world).to(vertices), torch.from_numpy(error).to(vertices), lo, hi, IMPORTANCE_RESOLUTION
+    )
+    return importance, lo, hi
+
+
 def _resample(params: Params, grid: Grid, n_target: int, ctx: FitContext) -> Params:
-    """Relocate passive points and grow the set to `n_target` by error-driven sampling (paper §4.3-4.4)."""
+    """Relocate the passive points and the active ones cheapest to remove (`Schedule.relocate`, fit.relocate) and
+    grow the set to `n_target` by error-driven sampling (paper §4.3-4.4)."""
     with torch.no_grad():
         imp = _importance(params, grid, ctx)
         if imp is None:
             return params
         importance, lo, hi = imp
         keep = one_ring_mask(grid.tets, active_mask(grid.tets, params.s))
+        relocate = ctx.config.schedule.relocate
+        if relocate > 0:
+            movable = keep.cpu().numpy().copy()
+            movable[:N_CORNERS] = False
+            if params.pinned is not None:
+                movable &= ~params.pinned.cpu().numpy()
+            points_np, s_np = params.points.detach().cpu().numpy(), params.s.detach().cpu().numpy()
+            moved = cheapest_points(points_np, s_np, grid.tets.cpu().numpy(), movable, int(relocate * n_target))
+            keep = keep & ~torch.from_numpy(moved).to(keep.device)
         pinned = None
         if params.pinned is not None:
             # feature points stay where they were placed (fit.features); kept points come first, in order
             keep = keep | params.pinned.to(keep.device)
             pinned = params.pinned.cpu().numpy()[keep.cpu().numpy()]
         n_target = max(n_target, int(keep.sum()))
+        near = None
+        if ctx.surface is not None:  # in a shell around the input, as the initial points
+            n_surface = max(1.0, (1.0 - UNIFORM_FRACTION) * n_target)
+            near = NearSurface(
+                ctx.surface.samples,
+                ctx.surface.sample_normals,
+                SHELL * math.sqrt(ctx.surface.area / n_surface),
+                SHELL_GAP,
+            )
         points, s, c = resample(
-            params.points, params.s, params.c, grid.tets, keep, importance, (lo, hi), n_target, ctx.generator
+            params.points, params.s, params.c, grid.tets, keep, importance, (lo, hi), n_target, ctx.generator, near
         )
         points = points.clamp(-GRID_BOUND, GRID_BOUND)
         if pinned is not None:
@@ -241,8 +305,10 @@ def prepare(
         raise TetweaveError(str(exc)) from None
     t0 = time.perf_counter()
     progress("targets", 0, 1, {})
-    targets = render_targets(vertices, faces, config.schedule.n_views, config.schedule.size, device=device)
     surface = SurfaceTarget(vertices, faces, seed=config.seed) if config.weights.surface > 0 else None
+    targets = None
+    if surface is None or config.weights.uses_images():  # else nothing looks at renders of the input
+        targets = render_targets(vertices, faces, config.schedule.n_views, config.schedule.size, device=device)
     ctx = FitContext(
         config=config,
         targets=targets,

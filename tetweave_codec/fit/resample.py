@@ -15,6 +15,8 @@ every device.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 import torch
 from scipy.spatial import cKDTree
@@ -314,6 +316,45 @@ def interpolate_in_tets(
     return out.reshape(-1) if squeeze else out
 
 
+class NearSurface(NamedTuple):
+    """Where `sample_near_surface` puts new points: fixed input surface samples (M,3) with their unit normals
+    (M,3), moved along the normal by t * half_width with |t| uniform in [gap, 1] and a random sign."""
+
+    samples: np.ndarray
+    normals: np.ndarray
+    half_width: float
+    gap: float
+
+
+def sample_near_surface(
+    grid: torch.Tensor, bbox_min: BoxCorner, bbox_max: BoxCorner, near: NearSurface, k: int, generator: torch.Generator
+) -> torch.Tensor:
+    """Draw k points in a shell around the input surface, denser where the importance grid (R,R,R) is high.
+
+    Each point picks one of ``near.samples`` with probability proportional to the importance of the voxel it lies
+    in (so a voxel gets points in proportion to its error times its surface area; uniform over the samples when
+    no sample sees a positive importance) and moves along its normal as in the initial shell
+    (``fit.initialize.initial_points``). Returns (k,3) float64 on the generator's device.
+    """
+    gdev = generator.device
+    samples = torch.as_tensor(near.samples, dtype=torch.float64, device=gdev)
+    if k <= 0:
+        return samples[:0]
+    r = grid.shape[0]
+    values = torch.nan_to_num(grid.to(device=gdev, dtype=torch.float64).reshape(-1), nan=0.0, posinf=0.0)
+    flat, inside = _voxel_index(
+        samples, _as_tensor(bbox_min, gdev, torch.float64), _as_tensor(bbox_max, gdev, torch.float64), r
+    )
+    weights = torch.where(inside, values[flat].clamp_min(0.0), torch.zeros_like(values[flat]))
+    if not bool((weights > 0).any()):
+        weights = torch.ones_like(weights)
+    pick = torch.multinomial(weights, k, replacement=True, generator=generator)
+    t = torch.rand(k, generator=generator, device=gdev, dtype=torch.float64) * (1.0 - near.gap) + near.gap
+    sign = torch.where(torch.rand(k, generator=generator, device=gdev) < 0.5, -1.0, 1.0).to(torch.float64)
+    normals = torch.as_tensor(near.normals, dtype=torch.float64, device=gdev)[pick]
+    return samples[pick] + (near.half_width * t * sign)[:, None] * normals
+
+
 def resample(
     points: torch.Tensor,
     s: torch.Tensor,
@@ -324,6 +365,7 @@ def resample(
     bbox: tuple[BoxCorner, BoxCorner],
     n_target: int,
     generator: torch.Generator,
+    near: NearSurface | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Keep the points that matter, drop the rest and draw new ones from an importance grid (paper §4.3).
 
@@ -335,6 +377,8 @@ def resample(
         bbox: (bbox_min (3,), bbox_max (3,)) of the grid.
         n_target: number of points returned.
         generator: torch.Generator, the only source of randomness.
+        near: draw the new points in a shell around the input (`sample_near_surface`) instead of uniformly
+            inside the voxels (`sample_from_importance`).
     Returns:
         points (n_target,3), s (n_target,), c (n_target,q), detached, on the input's device and dtypes: first
         the kept points in their original order, unchanged, then the new points with s and c interpolated
@@ -350,7 +394,10 @@ def resample(
         rank = rank.to(device)
         kept = torch.sort(kept[torch.argsort(rank, descending=True, stable=True)[:n_target]]).values
     n_new = n_target - len(kept)
-    new_points = sample_from_importance(grid, bbox[0], bbox[1], n_new, generator, dtype=points.dtype)
+    if near is None:
+        new_points = sample_from_importance(grid, bbox[0], bbox[1], n_new, generator, dtype=points.dtype)
+    else:
+        new_points = sample_near_surface(grid, bbox[0], bbox[1], near, n_new, generator).to(points.dtype)
     new_points = new_points.to(device)
     values = torch.cat([s.detach().reshape(-1, 1), c.detach().reshape(len(s), -1)], dim=1)
     new_values = interpolate_in_tets(points, tets, values, new_points)

@@ -34,14 +34,14 @@ def noop_progress(stage: str, done: int, total: int, info: dict) -> None:
 class FitContext:
     """What every stage of one fit shares.
 
-    config: the settings. targets: renders of the input. surface: the 3-D Chamfer term (None when weighted 0).
-    backend: the Delaunay backend the decoder will use. generator: the one RNG of the fit (seeded by config.seed).
-    history: (stage, iteration, loss) samples. seconds: wall time per stage. topology: the last marching-tets
-    topology (see `extract`).
+    config: the settings. targets: renders of the input (None when no loss or resampling looks at them).
+    surface: the 3-D Chamfer term (None when weighted 0). backend: the Delaunay backend the decoder will use.
+    generator: the one RNG of the fit (seeded by config.seed). history: (stage, iteration, loss) samples.
+    seconds: wall time per stage. topology: the last marching-tets topology (see `extract`).
     """
 
     config: FitConfig
-    targets: Targets
+    targets: Targets | None
     surface: SurfaceTarget | None
     backend: str
     device: torch.device
@@ -51,8 +51,10 @@ class FitContext:
     seconds: dict[str, float] = field(default_factory=dict)
     topology: TopologyCache = field(default_factory=lambda: TopologyCache())
 
-    def random_views(self) -> Tensor:
-        """Indices of this iteration's target views."""
+    def random_views(self) -> Tensor | None:
+        """Indices of this iteration's target views (None when the fit renders nothing)."""
+        if self.targets is None:
+            return None
         n = self.config.schedule.views_per_iter
         return torch.randperm(len(self.targets), generator=self.generator)[:n].to(self.device)
 
@@ -137,7 +139,7 @@ def regularized_loss(
     s: Tensor,
     c: Tensor,
     grid: Grid,
-    views: Tensor,
+    views: Tensor | None,
     with_grid_terms: bool,
     odt_factor: float = 1.0,
 ) -> tuple[Tensor, dict[str, float]]:

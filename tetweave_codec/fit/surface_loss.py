@@ -32,6 +32,7 @@ from torch import Tensor
 
 from tetweave_codec.geometry.triangles import (
     draw_surface_samples,
+    face_areas,
     face_cross,
     face_normals,
     points_from_barycentrics,
@@ -84,6 +85,7 @@ class SurfaceTarget:
         # In face order, and each call's subset in this order: nearby queries share their walk down the mesh's tree.
         order = np.argsort(face, kind="stable")
         self.samples = samples[order]
+        self.area = float(face_areas(self.vertices, self.faces).sum())
         self.face_normals = face_normals(self.vertices, self.faces)  # (F,3) unit, zero rows for degenerate faces
         self.sample_normals = self.face_normals[face[order]]  # (n_samples,3)
         self._mesh_tree: _MeshTree | None = None
