@@ -78,6 +78,7 @@ def run(args: argparse.Namespace) -> None:
             )  # fmt: skip
             print(json.dumps(row), flush=True)
             out.write(json.dumps(row) + "\n")
+            out.flush()
 
 
 def compare(args: argparse.Namespace) -> None:
