@@ -65,7 +65,7 @@ from tetweave_codec.render import render_maps
 IMPORTANCE_RESOLUTION = 32
 # Views rendered to estimate the resampling importance.
 IMPORTANCE_VIEWS = 8
-# Samples per direction of the 3-D importance (Schedule.importance "distance").
+# Samples per direction of the 3-D importance (`_distance_importance`).
 IMPORTANCE_SAMPLES = 100_000
 
 
