@@ -94,3 +94,30 @@ def test_sample_near_surface_follows_importance_and_stays_in_the_shell():
     none = rs.sample_near_surface(torch.zeros(8, 8, 8), lo, hi, near, 100, torch.Generator().manual_seed(1))
     assert none.shape == (100, 3)  # no importance anywhere: uniform over the samples
     assert rs.sample_near_surface(grid, lo, hi, near, 0, torch.Generator()).shape == (0, 3)
+
+
+def test_distance_importance_peaks_where_the_mesh_leaves_the_input():
+    """The 3-D importance of a resampling: highest in the voxels of a dent, ~0 where mesh and input agree."""
+    import trimesh
+
+    from tetweave_codec.fit import loop
+    from tetweave_codec.fit.surface_loss import SurfaceTarget
+
+    sphere = trimesh.creation.icosphere(subdivisions=4, radius=0.8)
+    target = SurfaceTarget(np.asarray(sphere.vertices), np.asarray(sphere.faces), n_samples=50_000, seed=0)
+    dented = np.array(sphere.vertices, dtype=np.float64)
+    cap = dented[:, 0] > 0.6  # push the +x cap inwards by up to 0.1
+    dented[cap] *= (1.0 - 0.125 * (dented[cap, 0:1] - 0.6) / 0.2).clip(0.8, 1.0)
+
+    class Ctx:  # the two fields _distance_importance reads
+        surface = target
+        generator = torch.Generator().manual_seed(0)
+
+    grid, lo, hi = loop._distance_importance(torch.from_numpy(dented), torch.from_numpy(np.asarray(sphere.faces)), Ctx)
+    r = grid.shape[0]
+    assert grid.shape == (r, r, r) and (grid >= 0).all()
+    centers = lo + (torch.stack(torch.meshgrid(*[torch.arange(r)] * 3, indexing="ij"), -1) + 0.5) * (hi - lo) / r
+    top = centers[grid > 0.5 * grid.max()]
+    assert len(top) > 0 and (top[:, 0] > 0.55).all()  # the peak is at the dent
+    far = grid[centers[..., 0] < 0.0]
+    assert float(far.max()) < 0.05 * float(grid.max())  # the rest of the sphere matches the input
