@@ -31,12 +31,15 @@ from tetweave_codec.errors import TetweaveError
 from tetweave_codec.fit.config import FitConfig
 from tetweave_codec.fit.finish import FinishResult, finish
 from tetweave_codec.fit.initialize import (
+    MIN_ABS_S,
     N_CORNERS,
     SHELL,
     SHELL_GAP,
     UNIFORM_FRACTION,
+    clear_of_creases,
     initial_state_pinned,
     random_state,
+    signed_distance,
 )
 from tetweave_codec.fit.optim import set_deterministic
 from tetweave_codec.fit.relocate import cheapest_points
@@ -168,11 +171,12 @@ def _resample(params: Params, grid: Grid, n_target: int, ctx: FitContext) -> Par
             pinned = params.pinned.cpu().numpy()[keep.cpu().numpy()]
         n_target = max(n_target, int(keep.sum()))
         near = None
-        if ctx.surface is not None:  # in a shell around the input, as the initial points
+        if ctx.surface is not None:  # in a shell around the input, as the initial points, clear of creases
             n_surface = max(1.0, (1.0 - UNIFORM_FRACTION) * n_target)
+            allowed = slice(None) if ctx.shell_samples is None else ctx.shell_samples
             near = NearSurface(
-                ctx.surface.samples,
-                ctx.surface.sample_normals,
+                ctx.surface.samples[allowed],
+                ctx.surface.sample_normals[allowed],
                 SHELL * math.sqrt(ctx.surface.area / n_surface),
                 SHELL_GAP,
             )
@@ -180,6 +184,15 @@ def _resample(params: Params, grid: Grid, n_target: int, ctx: FitContext) -> Par
             params.points, params.s, params.c, grid.tets, keep, importance, (lo, hi), n_target, ctx.generator, near
         )
         points = points.clamp(-GRID_BOUND, GRID_BOUND)
+        n_new = len(points) - min(int(keep.sum()), n_target)
+        if near is not None and n_new > 0:
+            # A point next to the surface takes the input's signed distance, as at the start: s interpolated in the
+            # old tets is wrong by up to the old tets' error there and can put it on the wrong side.
+            sdf = signed_distance(
+                points[-n_new:].cpu().numpy().astype(np.float64), ctx.surface.vertices, ctx.surface.faces
+            )
+            sdf[sdf == 0] = MIN_ABS_S
+            s = torch.cat([s[:-n_new], torch.from_numpy(sdf).to(s)])
         if pinned is not None:
             pinned = np.concatenate([pinned, np.zeros(len(points) - len(pinned), dtype=bool)])
     return Params(points.cpu().numpy(), s.cpu().numpy(), c.cpu().numpy(), ctx.device, ctx.config.lr, pinned=pinned)
@@ -338,5 +351,7 @@ def start(vertices: np.ndarray, faces: np.ndarray, ctx: FitContext) -> Params:
     else:
         raise TetweaveError(f"unknown initialization {config.init!r}")
     assert c.shape[1] == num_coeffs(config.sh_degree)
+    if pinned is not None and pinned.any() and ctx.surface is not None:
+        ctx.shell_samples = clear_of_creases(vertices, faces, config.points, ctx.surface.samples)
     ctx.seconds["init"] = time.perf_counter() - t0
     return Params(points, s, c, ctx.device, config.lr, pinned=pinned)
