@@ -58,12 +58,15 @@ PRIOR_ERROR_POINTS = 3.5
 # Recalibrated after the fit improved (normal term, iterations scaled with the points, relocation: issue 14): the
 # first fits of that table then landed at 0.45-0.62 of the target (fandisk 2e-3 / 1e-3 / 5e-4: N x Chamfer 1.17 /
 # 1.06 / 0.84 against P = 1.70; igea 2e-3: 2.38 against 3.69) and every search took a second, smaller fit (2.0-2.1x
-# one fit's time for 14-34 % fewer bytes); base and slope x 0.65 (benchmarks/results/rate_control.md).
+# one fit's time for 14-34 % fewer bytes). x 0.65 then overshot at the large counts (igea 5e-4: err falls as
+# N^-0.8 there) and the bunny's holes made its 1e-3 fit miss; x 0.72, and the first fit sized with half of F
+# (FIRST_FIT_HOLE_SHARE; benchmarks/results/rate_control.md).
 PRIOR_PROBE_VERTICES = 1000
 PRIOR_PROBE_SAMPLES = 20_000  # Chamfer samples of the probe (its resolution ~1e-5 is far below the targets)
-PRIOR_BASE = 1.1
+PRIOR_BASE = 1.22
 PRIOR_DETAIL_KNEE = 1.0
-PRIOR_DETAIL_SLOPE = 1.17
+PRIOR_DETAIL_SLOPE = 1.3
+FIRST_FIT_HOLE_SHARE = 0.5
 PRIOR_ALPHA = 0.8  # err ~ N^-alpha when only one fit is known (a little below 1: ask for a few more points)
 ERROR_AIM = 0.9  # aim the predicted error at this fraction of the target (the per-mesh prior is close)
 ERROR_AIM_SHRINK = 0.75  # a smaller fit aims lower: the error grows faster than 1/N at small counts
@@ -236,10 +239,10 @@ def encode_to_error(job, max_error: float):
             f"{int(min(first, 1e12)):,} points for it by its prior ({holes}rate control fits at most "
             f"{MAX_RATE_POINTS:,})"
         )
-    # The first fit is sized by P alone: P's decimation probe already carries part of the holes' cost, so P / N + F
-    # counted it twice and overshot (stanford-bunny: first fits at 0.75-0.82 of the target, files +16 % / +58 % at
-    # 2e-3 / 1e-3); sized without F a fit of a holed mesh may miss and the search grows it from the measured error.
-    n = _clamp_points(prior / aim)
+    # The first fit is sized with part of F: P's decimation probe already carries part of the holes' cost, so
+    # P / N + F counted it twice and overshot (stanford-bunny: first fits at 0.75-0.82 of the target, files +16 % /
+    # +58 % at 2e-3 / 1e-3); without F the bunny's 1e-3 fit missed once P was recalibrated.
+    n = _clamp_points(prior / max(aim - FIRST_FIT_HOLE_SHARE * floor, 0.5 * aim))
     for _ in range(MAX_ERROR_FITS):
         runs[n] = _fit_and_measure(job, n, default_quantization(n), decode)
         met = sorted(k for k, r in runs.items() if r.error <= max_error)
