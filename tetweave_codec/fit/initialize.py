@@ -281,20 +281,6 @@ def initial_state_pinned(
     return points, s, c, pinned
 
 
-def clear_of_creases(vertices: np.ndarray, faces: np.ndarray, n: int, queries: np.ndarray) -> np.ndarray | None:
-    """(M,) bool: the queries (M,3) at least CREASE_CLEARANCE crease spacings from the input's creases, where the
-    feature-aware start (``initial_state_pinned`` with n points) keeps shell points; None when it finds no creases.
-
-    Points added later (resampling) must keep the same clearance, else they make tets that see both faces of a
-    crease and undo the feature layout (a cube at 512 points: Chamfer 3.3e-3 -> 2.9e-2).
-    """
-    feat = detect_features(vertices, faces)
-    if feat is None or not feat.found:
-        return None
-    spacing = CREASE_SPACING * math.sqrt(float(face_areas(vertices, faces).sum()) / max(n, 1))
-    return crease_distance(feat, queries) >= CREASE_CLEARANCE * spacing
-
-
 def _feature_state(
     vertices: np.ndarray,
     faces: np.ndarray,

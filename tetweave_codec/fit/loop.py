@@ -36,7 +36,6 @@ from tetweave_codec.fit.initialize import (
     SHELL,
     SHELL_GAP,
     UNIFORM_FRACTION,
-    clear_of_creases,
     initial_state_pinned,
     random_state,
     signed_distance,
@@ -171,12 +170,11 @@ def _resample(params: Params, grid: Grid, n_target: int, ctx: FitContext) -> Par
             pinned = params.pinned.cpu().numpy()[keep.cpu().numpy()]
         n_target = max(n_target, int(keep.sum()))
         near = None
-        if ctx.surface is not None:  # in a shell around the input, as the initial points, clear of creases
+        if ctx.surface is not None:  # in a shell around the input, as the initial points
             n_surface = max(1.0, (1.0 - UNIFORM_FRACTION) * n_target)
-            allowed = slice(None) if ctx.shell_samples is None else ctx.shell_samples
             near = NearSurface(
-                ctx.surface.samples[allowed],
-                ctx.surface.sample_normals[allowed],
+                ctx.surface.samples,
+                ctx.surface.sample_normals,
                 SHELL * math.sqrt(ctx.surface.area / n_surface),
                 SHELL_GAP,
             )
@@ -351,7 +349,5 @@ def start(vertices: np.ndarray, faces: np.ndarray, ctx: FitContext) -> Params:
     else:
         raise TetweaveError(f"unknown initialization {config.init!r}")
     assert c.shape[1] == num_coeffs(config.sh_degree)
-    if pinned is not None and pinned.any() and ctx.surface is not None:
-        ctx.shell_samples = clear_of_creases(vertices, faces, config.points, ctx.surface.samples)
     ctx.seconds["init"] = time.perf_counter() - t0
     return Params(points, s, c, ctx.device, config.lr, pinned=pinned)

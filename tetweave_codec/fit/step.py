@@ -50,9 +50,6 @@ class FitContext:
     history: list[tuple[str, int, float]] = field(default_factory=list)
     seconds: dict[str, float] = field(default_factory=dict)
     topology: TopologyCache = field(default_factory=lambda: TopologyCache())
-    # (n_samples,) bool over surface.samples: where resampling may put new points (clear of the creases of a
-    # feature-aware start, fit.initialize.clear_of_creases); None = everywhere
-    shell_samples: np.ndarray | None = None
 
     def random_views(self) -> Tensor | None:
         """Indices of this iteration's target views (None when the fit renders nothing)."""
