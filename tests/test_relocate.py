@@ -109,11 +109,14 @@ def test_distance_importance_peaks_where_the_mesh_leaves_the_input():
     cap = dented[:, 0] > 0.6  # push the +x cap inwards by up to 0.1
     dented[cap] *= (1.0 - 0.125 * (dented[cap, 0:1] - 0.6) / 0.2).clip(0.8, 1.0)
 
-    class Ctx:  # the two fields _distance_importance reads
+    class Ctx:  # the two fields _distance_errors reads
         surface = target
         generator = torch.Generator().manual_seed(0)
 
-    grid, lo, hi = loop._distance_importance(torch.from_numpy(dented), torch.from_numpy(np.asarray(sphere.faces)), Ctx)
+    vertices = torch.from_numpy(dented)
+    world, error = loop._distance_errors(vertices, torch.from_numpy(np.asarray(sphere.faces)), Ctx)
+    lo, hi = loop._padded_box(vertices)
+    grid = rs.voxel_importance(world, error, lo, hi, loop.IMPORTANCE_RESOLUTION)
     r = grid.shape[0]
     assert grid.shape == (r, r, r) and (grid >= 0).all()
     centers = lo + (torch.stack(torch.meshgrid(*[torch.arange(r)] * 3, indexing="ij"), -1) + 0.5) * (hi - lo) / r

@@ -67,7 +67,7 @@ from tetweave_codec.render import render_maps
 IMPORTANCE_RESOLUTION = 32
 # Views rendered to estimate the resampling importance.
 IMPORTANCE_VIEWS = 8
-# Samples per direction of the 3-D importance (`_distance_importance`).
+# Samples per direction of the 3-D importance (`_distance_errors`).
 IMPORTANCE_SAMPLES = 100_000
 
 
@@ -88,7 +88,7 @@ class FitResult:
 
 
 def _importance(params: Params, grid: Grid, ctx: FitContext) -> tuple[Tensor, Tensor, Tensor] | None:
-    """Voxel importance: the current mesh's distance to the input where the 3-D term is on (`_distance_importance`),
+    """Voxel importance: the current mesh's distance to the input where the 3-D term is on (`_distance_errors`),
     else the normal-map error of renders (paper eq. importance).
 
     Returns (grid (R,R,R), bbox_min (3,), bbox_max (3,)) or None when the current mesh is empty.
@@ -98,25 +98,31 @@ def _importance(params: Params, grid: Grid, ctx: FitContext) -> tuple[Tensor, Te
         if mt.faces.shape[0] == 0:
             return None
         if ctx.surface is not None:
-            return _distance_importance(mt.vertices, mt.faces, ctx)
-        n = min(IMPORTANCE_VIEWS, len(ctx.targets))
-        views = torch.randperm(len(ctx.targets), generator=ctx.generator)[:n].to(ctx.device)
-        cams, target_maps = ctx.targets.select(views)
-        maps = render_maps(mt.vertices, mt.faces, cams, ctx.config.schedule.size)
-        on_mesh = maps.fragments.face_id >= 0
-        error = (maps.normals - target_maps.normals).abs().sum(-1)  # (B,H,W) L1 normal error
-        world = cams.backproject(maps.depth)  # (B,H,W,3) surface points
-        lo = mt.vertices.min(0).values
-        hi = mt.vertices.max(0).values
-        pad = 0.02 * (hi - lo).max().clamp_min(1e-3)
-        lo, hi = lo - pad, hi + pad
-        importance = voxel_importance(world[on_mesh], error[on_mesh], lo, hi, resolution=IMPORTANCE_RESOLUTION)
+            world, error = _distance_errors(mt.vertices, mt.faces, ctx)
+        else:
+            n = min(IMPORTANCE_VIEWS, len(ctx.targets))
+            views = torch.randperm(len(ctx.targets), generator=ctx.generator)[:n].to(ctx.device)
+            cams, target_maps = ctx.targets.select(views)
+            maps = render_maps(mt.vertices, mt.faces, cams, ctx.config.schedule.size)
+            on_mesh = maps.fragments.face_id >= 0
+            error = (maps.normals - target_maps.normals).abs().sum(-1)[on_mesh]  # L1 normal error per pixel
+            world = cams.backproject(maps.depth)[on_mesh]  # the pixels' surface points
+        lo, hi = _padded_box(mt.vertices)
+        importance = voxel_importance(world, error, lo, hi, resolution=IMPORTANCE_RESOLUTION)
         return importance, lo, hi
 
 
-def _distance_importance(vertices: Tensor, faces: Tensor, ctx: FitContext) -> tuple[Tensor, Tensor, Tensor]:
-    """Voxel importance = mean point-to-surface distance of the samples in each voxel, both directions: area
-    samples of the mesh (vertices (V,3), faces (F,3)) to the input, and input samples to the mesh.
+def _padded_box(vertices: Tensor) -> tuple[Tensor, Tensor]:
+    """The importance grid's box: the bounding box of vertices (V,3) grown by 2 % of its largest side."""
+    lo = vertices.min(0).values
+    hi = vertices.max(0).values
+    pad = 0.02 * (hi - lo).max().clamp_min(1e-3)
+    return lo - pad, hi + pad
+
+
+def _distance_errors(vertices: Tensor, faces: Tensor, ctx: FitContext) -> tuple[Tensor, Tensor]:
+    """Sample points (P,3) and their point-to-surface distances (P,), both directions: area samples of the mesh
+    (vertices (V,3), faces (F,3)) to the input, and input samples to the mesh; tensors like `vertices`.
 
     The metric's own error, where renders at 160 px see normals only at pixel scale. Measured alone it is within
     the fit's seed-to-seed spread (it decides where the few passive points go); with relocation it decides where
@@ -135,14 +141,7 @@ def _distance_importance(vertices: Tensor, faces: Tensor, ctx: FitContext) -> tu
     d_q, _, _ = tree.squared_distance(v, f, np.ascontiguousarray(q))
     world = np.concatenate([on_mesh, q])
     error = np.concatenate([np.linalg.norm(on_mesh - cp, axis=1), np.sqrt(np.maximum(d_q, 0.0)).reshape(-1)])
-    lo = vertices.min(0).values
-    hi = vertices.max(0).values
-    pad = 0.02 * (hi - lo).max().clamp_min(1e-3)
-    lo, hi = lo - pad, hi + pad
-    importance = voxel_importance(
-        torch.from_numpy(world).to(vertices), torch.from_numpy(error).to(vertices), lo, hi, IMPORTANCE_RESOLUTION
-    )
-    return importance, lo, hi
+    return torch.from_numpy(world).to(vertices), torch.from_numpy(error).to(vertices)
 
 
 def _resample(params: Params, grid: Grid, n_target: int, ctx: FitContext) -> Params:

@@ -16,15 +16,16 @@ from __future__ import annotations
 
 import numpy as np
 
+from tetweave_codec.geometry.marching_tets import TET_EDGES
+
 # Ridge on the gradient of the neighbours' linear fit, relative to the sum of weights times the mean squared edge.
 RIDGE = 1e-3
-TET_EDGES = ((0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3))
 
 
 def tet_edges(tets: np.ndarray, n: int) -> np.ndarray:
     """Unique undirected edges (E,2) int64, i < j, of tets (T,4) over n points."""
     tets = np.asarray(tets, dtype=np.int64)
-    pairs = np.concatenate([tets[:, [a, b]] for a, b in TET_EDGES])
+    pairs = tets[:, TET_EDGES].reshape(-1, 2)
     lo, hi = pairs.min(1), pairs.max(1)
     key = np.unique(lo * n + hi)
     return np.stack([key // n, key % n], 1)
