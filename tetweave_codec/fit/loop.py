@@ -58,6 +58,7 @@ from tetweave_codec.fit.surface_loss import SurfaceTarget
 from tetweave_codec.fit.targets import render_targets
 from tetweave_codec.formats.quantize import GRID_BOUND
 from tetweave_codec.geometry.active import active_mask, one_ring_mask
+from tetweave_codec.geometry.closest import SurfaceTree
 from tetweave_codec.geometry.delaunay import resolve_backend
 from tetweave_codec.geometry.sh import check_degree, num_coeffs
 from tetweave_codec.geometry.triangles import sample_surface
@@ -128,19 +129,15 @@ def _distance_errors(vertices: Tensor, faces: Tensor, ctx: FitContext) -> tuple[
     the fit's seed-to-seed spread (it decides where the few passive points go); with relocation it decides where
     a sixth of the points go (benchmarks/results/relocation.md).
     """
-    import igl
-
     v = vertices.detach().cpu().numpy().astype(np.float64)
     f = faces.detach().cpu().numpy().astype(np.int64)
     seed = int(torch.randint(0, 2**31 - 1, (1,), generator=ctx.generator))
     on_mesh, _ = sample_surface(v, f, IMPORTANCE_SAMPLES, seed)
     cp, _ = ctx.surface.closest_points(on_mesh)
     q = ctx.surface.samples[:: max(1, len(ctx.surface.samples) // IMPORTANCE_SAMPLES)]
-    tree = igl.AABB()
-    tree.init(v, f)
-    d_q, _, _ = tree.squared_distance(v, f, np.ascontiguousarray(q))
+    d_q, _, _ = SurfaceTree(v, f).query(q)
     world = np.concatenate([on_mesh, q])
-    error = np.concatenate([np.linalg.norm(on_mesh - cp, axis=1), np.sqrt(np.maximum(d_q, 0.0)).reshape(-1)])
+    error = np.concatenate([np.linalg.norm(on_mesh - cp, axis=1), np.sqrt(np.maximum(d_q, 0.0))])
     return torch.from_numpy(world).to(vertices), torch.from_numpy(error).to(vertices)
 
 

@@ -30,6 +30,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from tetweave_codec.geometry.closest import SurfaceTree
 from tetweave_codec.geometry.triangles import (
     draw_surface_samples,
     face_areas,
@@ -75,12 +76,9 @@ class SurfaceTarget:
     """
 
     def __init__(self, vertices: np.ndarray, faces: np.ndarray, n_samples: int = 200_000, seed: int = 0):
-        import igl
-
         self.vertices = np.ascontiguousarray(vertices, dtype=np.float64)
         self.faces = np.ascontiguousarray(faces, dtype=np.int64)
-        self.tree = igl.AABB()
-        self.tree.init(self.vertices, self.faces)
+        self.tree = SurfaceTree(self.vertices, self.faces)
         samples, face = sample_surface(self.vertices, self.faces, n_samples, seed)
         # In face order, and each call's subset in this order: nearby queries share their walk down the mesh's tree.
         order = np.argsort(face, kind="stable")
@@ -92,8 +90,8 @@ class SurfaceTarget:
 
     def closest_points(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Closest points (n,3) on the input surface to `points` (n,3) and the input face (n,) int64 of each."""
-        _, face, cp = self.tree.squared_distance(self.vertices, self.faces, np.ascontiguousarray(points, np.float64))
-        return cp, np.asarray(face, dtype=np.int64).reshape(-1)
+        _, face, cp = self.tree.query(points)
+        return cp, face
 
     def loss(self, vertices: Tensor, faces: Tensor, generator: torch.Generator, per_call: int = 8_000) -> SurfaceLoss:
         """Symmetric point-to-surface Chamfer distance and normal error between the mesh (vertices (V,3), faces
@@ -120,10 +118,9 @@ class SurfaceTarget:
         pick = np.sort(torch.randperm(len(self.samples), generator=generator)[:per_call].numpy())
         q = self.samples[pick]
         tree = self._tree_for(v_np, f_np)
-        _, face, closest = tree.tree.squared_distance(tree.vertices, f_np, q)
-        face = np.asarray(face, dtype=np.int64).reshape(-1)
+        _, face, closest = tree.tree.query(q)
         # Barycentrics on the tree's mesh (possibly a few steps old, same faces), applied to the current corners.
-        tri = tree.vertices[f_np[face]]
+        tri = tree.tree.vertices[f_np[face]]
         bary = igl.barycentric_coordinates(
             closest, np.ascontiguousarray(tri[:, 0]), np.ascontiguousarray(tri[:, 1]), np.ascontiguousarray(tri[:, 2])
         )
@@ -144,24 +141,17 @@ class SurfaceTarget:
         for up to TREE_REUSE_CALLS calls the closest faces are found on the mesh the tree was built for and their
         barycentric coordinates applied to the current vertices (the linearization the term makes anyway).
         """
-        import igl
-
         cached = self._mesh_tree
-        if cached is not None and cached.calls < TREE_REUSE_CALLS and np.array_equal(cached.faces, f_np):
+        if cached is not None and cached.calls < TREE_REUSE_CALLS and np.array_equal(cached.tree.faces, f_np):
             cached.calls += 1
             return cached
-        tree = igl.AABB()
-        tree.init(v_np, f_np)
-        self._mesh_tree = _MeshTree(tree, v_np, f_np.copy())
+        self._mesh_tree = _MeshTree(SurfaceTree(v_np, f_np))
         return self._mesh_tree
 
 
 class _MeshTree:
-    """An AABB tree of one extracted mesh: the tree, the vertices (V,3) and faces (F,3) it was built on and how
-    many later calls reused it."""
+    """The tree of one extracted mesh (its vertices and faces in `tree`) and how many later calls reused it."""
 
-    def __init__(self, tree, vertices: np.ndarray, faces: np.ndarray):
+    def __init__(self, tree: SurfaceTree):
         self.tree = tree
-        self.vertices = vertices
-        self.faces = faces
         self.calls = 0
