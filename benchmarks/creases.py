@@ -32,7 +32,7 @@ def _mesh(solid: m3.Manifold) -> tuple[np.ndarray, np.ndarray]:
 
 
 def csg_shapes() -> dict[str, m3.Manifold]:
-    """The three CSG parts of issue 15."""
+    """The three CSG parts of issue 15 and a thin fin (issue 14: thin parts)."""
     cube = m3.Manifold.cube([1, 1, 1], center=True)
     return {
         "cube": cube,
@@ -40,6 +40,8 @@ def csg_shapes() -> dict[str, m3.Manifold]:
         "three-boxes": m3.Manifold.cube([1.2, 0.4, 0.4], center=True)
         + m3.Manifold.cube([0.4, 1.2, 0.4], center=True)
         + m3.Manifold.cube([0.4, 0.4, 1.2], center=True).translate([0.3, 0.2, 0.1]),
+        # a plate with a fin 2 % of the longest side thick: thinner than the point spacing up to ~8 KB
+        "fin": m3.Manifold.cube([1.0, 1.0, 0.2]) + m3.Manifold.cube([0.8, 0.02, 0.6]).translate([0.1, 0.49, 0.2]),
     }
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 import torch
 from scipy.spatial import Delaunay
 
@@ -94,6 +95,30 @@ def test_sample_near_surface_follows_importance_and_stays_in_the_shell():
     none = rs.sample_near_surface(torch.zeros(8, 8, 8), lo, hi, near, 100, torch.Generator().manual_seed(1))
     assert none.shape == (100, 3)  # no importance anywhere: uniform over the samples
     assert rs.sample_near_surface(grid, lo, hi, near, 0, torch.Generator()).shape == (0, 3)
+
+
+def test_sample_near_surface_stays_inside_a_thin_part():
+    """With the input's tree, new points drawn from the top face of a plate thinner than the shell land inside
+    the plate or above it, never below it (across the plate)."""
+    manifold3d = pytest.importorskip("manifold3d")
+    from tetweave_codec.geometry.closest import SurfaceTree
+    from tetweave_codec.geometry.triangles import face_normals
+
+    mesh = manifold3d.Manifold.cube([1.6, 0.02, 1.6], center=True).to_mesh()
+    v, f = np.asarray(mesh.vert_properties[:, :3], np.float64), np.asarray(mesh.tri_verts, np.int64)
+    rng = np.random.default_rng(0)
+    samples = np.column_stack([rng.uniform(-0.7, 0.7, 3000), np.full(3000, 0.01), rng.uniform(-0.7, 0.7, 3000)])
+    normals = np.tile([0.0, 1.0, 0.0], (3000, 1))
+    lo, hi = torch.tensor([-1.0] * 3), torch.tensor([1.0] * 3)
+    args = (torch.ones(4, 4, 4), lo, hi)
+    plain = rs.NearSurface(samples, normals, half_width=0.1, gap=0.25)
+    crossing = rs.sample_near_surface(*args, plain, 2000, torch.Generator().manual_seed(0)).numpy()
+    assert (crossing[:, 1] < -0.01).mean() > 0.4  # without the tree: half go through the plate
+    near = rs.NearSurface(samples, normals, 0.1, 0.25, SurfaceTree(v, f), face_normals(v, f))
+    pts = rs.sample_near_surface(*args, near, 2000, torch.Generator().manual_seed(0)).numpy()
+    assert np.all(pts[:, 1] > -0.01)
+    assert 0.4 < (pts[:, 1] < 0.01).mean() < 0.6  # the inward half is inside
+    np.testing.assert_array_equal(pts[crossing[:, 1] > 0.01], crossing[crossing[:, 1] > 0.01])
 
 
 def test_distance_importance_peaks_where_the_mesh_leaves_the_input():

@@ -173,6 +173,8 @@ def _resample(params: Params, grid: Grid, n_target: int, ctx: FitContext) -> Par
                 ctx.surface.sample_normals,
                 SHELL * math.sqrt(ctx.surface.area / n_surface),
                 SHELL_GAP,
+                ctx.surface.tree,
+                ctx.surface.face_normals,
             )
         points, s, c = resample(
             params.points, params.s, params.c, grid.tets, keep, importance, (lo, hi), n_target, ctx.generator, near

@@ -21,6 +21,9 @@ import numpy as np
 import torch
 from scipy.spatial import cKDTree
 
+from tetweave_codec.fit.initialize import keep_on_side
+from tetweave_codec.geometry.closest import SurfaceTree
+
 # Positions, index arrays and values may be torch tensors or numpy arrays where noted.
 Array = torch.Tensor | np.ndarray
 BoxCorner = torch.Tensor | np.ndarray | tuple[float, float, float] | list[float]
@@ -318,12 +321,16 @@ def interpolate_in_tets(
 
 class NearSurface(NamedTuple):
     """Where `sample_near_surface` puts new points: fixed input surface samples (M,3) with their unit normals
-    (M,3), moved along the normal by t * half_width with |t| uniform in [gap, 1] and a random sign."""
+    (M,3), moved along the normal by t * half_width with |t| uniform in [gap, 1] and a random sign. With the
+    input's closest-point `tree` and its unit face normals (F,3), offsets that would cross a thin part are
+    shortened (`fit.initialize.keep_on_side`)."""
 
     samples: np.ndarray
     normals: np.ndarray
     half_width: float
     gap: float
+    tree: SurfaceTree | None = None
+    face_normals: np.ndarray | None = None
 
 
 def sample_near_surface(
@@ -352,7 +359,12 @@ def sample_near_surface(
     t = torch.rand(k, generator=generator, device=gdev, dtype=torch.float64) * (1.0 - near.gap) + near.gap
     sign = torch.where(torch.rand(k, generator=generator, device=gdev) < 0.5, -1.0, 1.0).to(torch.float64)
     normals = torch.as_tensor(near.normals, dtype=torch.float64, device=gdev)[pick]
-    return samples[pick] + (near.half_width * t * sign)[:, None] * normals
+    offsets = near.half_width * t * sign
+    if near.tree is not None and near.face_normals is not None:
+        idx = pick.cpu().numpy()
+        kept = keep_on_side(near.samples[idx], near.normals[idx], offsets.cpu().numpy(), near.tree, near.face_normals)
+        offsets = torch.from_numpy(kept).to(offsets)
+    return samples[pick] + offsets[:, None] * normals
 
 
 def resample(
