@@ -8,7 +8,7 @@ import trimesh
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from tetweave_codec.geometry.closest import PARALLEL_MIN_QUERIES, SurfaceTree
+from tetweave_codec.geometry.closest import PAD_FROM, PARALLEL_MIN_QUERIES, SurfaceTree
 
 
 @pytest.fixture(scope="module")
@@ -26,7 +26,7 @@ def _igl(v, f, p):
     return np.asarray(sq).reshape(-1), np.asarray(face, np.int64).reshape(-1), np.asarray(cp).reshape(-1, 3)
 
 
-@pytest.mark.parametrize("n", [0, 1, 2, 37, PARALLEL_MIN_QUERIES - 1, PARALLEL_MIN_QUERIES + 5])
+@pytest.mark.parametrize("n", [0, 1, 2, 37, PAD_FROM, PARALLEL_MIN_QUERIES - 1, PARALLEL_MIN_QUERIES + 5])
 def test_same_answers_as_libigl_in_caller_order(sphere, n):
     v, f = sphere
     p = np.random.default_rng(n).normal(size=(n, 3)) * 1.5

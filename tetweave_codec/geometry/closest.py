@@ -8,8 +8,9 @@
   down the tree: a random order took 1.9x the time of a spatially sorted one on Igea (268K faces, 34K points near
   the surface, 2 threads);
 * libigl runs a batch in parallel only from `PARALLEL_MIN_QUERIES` points on (igl::parallel_for's threshold),
-  so a smaller batch is padded with copies of its last point up to that count: 8,000 points ran serially at
-  1.75 us each, 10,001 in parallel at 0.97 us on 2 cores. The padding's answers are dropped.
+  so a batch of `PAD_FROM` points or more is padded with copies of its last point up to that count: 8,000 points
+  ran serially at 1.75 us each, 10,001 in parallel at 0.97 us on 2 cores (9.7 ms in all, what ~5,600 serial
+  queries cost: smaller batches are faster unpadded). The padding's answers are dropped.
 
 Each point's answer is independent of the others, so neither changes a result.
 """
@@ -22,6 +23,8 @@ from tetweave_codec.formats.quantize import morton_keys
 
 # Batches below this many points run on one thread in libigl (igl::parallel_for's min_parallel in AABB).
 PARALLEL_MIN_QUERIES = 10_001
+# Smallest batch worth padding to PARALLEL_MIN_QUERIES (see the module docstring).
+PAD_FROM = 5_600
 # Morton cells per axis over the query points' bounding box; finer gains nothing once a cell holds a few points.
 _ORDER_CELLS = 1024
 
@@ -46,7 +49,7 @@ class SurfaceTree:
             return np.zeros(0), np.zeros(0, dtype=np.int64), np.zeros((0, 3))
         order = _spatial_order(p)
         batch = p[order]
-        if 1 < n < PARALLEL_MIN_QUERIES:
+        if PAD_FROM <= n < PARALLEL_MIN_QUERIES:
             batch = np.concatenate([batch, np.repeat(batch[-1:], PARALLEL_MIN_QUERIES - n, axis=0)])
         sq, face, closest = self._tree.squared_distance(self.vertices, self.faces, batch)
         out_sq = np.empty(n)
