@@ -67,6 +67,13 @@ def _point_triangle(q: np.ndarray, tri: np.ndarray) -> float:
     return float(min(seg))
 
 
+def test_a_mesh_without_faces_is_an_error_not_a_crash():
+    tree = SurfaceTree(np.zeros((3, 3)), np.zeros((0, 3), np.int64))
+    assert tree.query(np.zeros((0, 3)))[0].shape == (0,)
+    with pytest.raises(ValueError, match="without faces"):
+        tree.query(np.ones((2, 3)))
+
+
 def test_identical_points_and_a_flat_batch(sphere):
     v, f = sphere
     p = np.tile([[0.3, -0.2, 2.0]], (5, 1))  # zero-extent box: the order falls back to the identity

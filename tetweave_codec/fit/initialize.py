@@ -60,10 +60,13 @@ STRATIFY_BISECTIONS = 12
 SIDE_HALVINGS = 4
 
 
-def signed_distance(queries: np.ndarray, vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+def signed_distance(
+    queries: np.ndarray, vertices: np.ndarray, faces: np.ndarray, tree: SurfaceTree | None = None
+) -> np.ndarray:
     """Signed distance from points to a triangle mesh, negative inside.
 
-    The magnitude is the exact Euclidean distance to the closest triangle (libigl AABB tree); the sign comes
+    The magnitude is the exact Euclidean distance to the closest triangle (``tree``, the mesh's SurfaceTree,
+    built here when not given: callers that query the same mesh again pass theirs); the sign comes
     from the generalized winding number w (libigl's fast winding number): inside where |w| > INSIDE_WINDING.
     The winding number degrades gracefully on open scans (holes), multiple components, self-intersections and
     non-manifold edges, where pseudonormal signs break down. libigl's own ``signed_distance(...,
@@ -74,6 +77,7 @@ def signed_distance(queries: np.ndarray, vertices: np.ndarray, faces: np.ndarray
         queries: (M,3) float positions.
         vertices: (V,3) float mesh vertices.
         faces: (F,3) int triangles.
+        tree: a SurfaceTree of (vertices, faces), or None.
     Returns:
         (M,) float64 signed distances in the units of ``vertices``.
     """
@@ -84,7 +88,7 @@ def signed_distance(queries: np.ndarray, vertices: np.ndarray, faces: np.ndarray
         return np.zeros(0)
     if f.shape[0] == 0:
         raise InputError("cannot compute a signed distance to a mesh without faces")
-    sq_dist, _, _ = igl.point_mesh_squared_distance(q, v, f)
+    sq_dist, _, _ = (tree or SurfaceTree(v, f)).query(q)
     winding = igl.fast_winding_number(v, f, q)
     dist = np.sqrt(np.maximum(sq_dist, 0.0))
     return np.where(np.abs(winding) > INSIDE_WINDING, -dist, dist)
@@ -184,6 +188,7 @@ def initial_points(
     shell: float = SHELL,
     uniform_fraction: float = UNIFORM_FRACTION,
     shell_gap: float = SHELL_GAP,
+    tree: SurfaceTree | None = None,
 ) -> np.ndarray:
     """Points concentrated in a thin shell around the surface, plus a sparse uniform fill of [-BOX, BOX]^3.
 
@@ -218,6 +223,7 @@ def initial_points(
         shell: half width of the shell in units of the surface sample spacing.
         uniform_fraction: fraction of points spread uniformly in the cube.
         shell_gap: smallest |offset| as a fraction of the half width, in [0, 1).
+        tree: a SurfaceTree of (vertices, faces) to reuse, or None (built here).
     Returns:
         (n,3) float64 points inside [-BOX, BOX]^3.
     """
@@ -236,7 +242,7 @@ def initial_points(
         spacing = math.sqrt(area / n_surface)
         t = rng.uniform(shell_gap, 1.0, size=n_surface) * rng.choice([-1.0, 1.0], size=n_surface)
         offsets = keep_on_side(
-            pos, normals, shell * spacing * t, SurfaceTree(vertices, faces), face_normals(vertices, faces)
+            pos, normals, shell * spacing * t, tree or SurfaceTree(vertices, faces), face_normals(vertices, faces)
         )
         parts.append(pos + offsets[:, None] * normals)
     points = np.clip(np.concatenate(parts), -BOX, BOX)
@@ -302,12 +308,13 @@ def initial_state_pinned(
     check_degree(sh_degree)  # ValueError
     rng = np.random.default_rng(seed)
     feat = detect_features(vertices, faces) if features else None
+    tree = SurfaceTree(vertices, faces)
     if feat is None or not feat.found:
-        points = initial_points(vertices, faces, n, rng, **kwargs).astype(np.float32)
-        s = signed_distance(points, vertices, faces).astype(np.float32)
+        points = initial_points(vertices, faces, n, rng, tree=tree, **kwargs).astype(np.float32)
+        s = signed_distance(points, vertices, faces, tree).astype(np.float32)
         n_feat = 0
     else:
-        points, s, n_feat = _feature_state(vertices, faces, n, rng, feat, position_bits, **kwargs)
+        points, s, n_feat = _feature_state(vertices, faces, n, rng, feat, position_bits, tree, **kwargs)
     s[s == 0] = MIN_ABS_S  # the outside sign
     c = np.zeros((len(points), num_coeffs(sh_degree)), dtype=np.float32)
     pinned = np.zeros(len(points), dtype=bool)
@@ -322,6 +329,7 @@ def _feature_state(
     rng: np.random.Generator,
     feat: Features,
     position_bits: int | None,
+    tree: SurfaceTree,
     **kwargs: float,
 ) -> tuple[np.ndarray, np.ndarray, int]:
     """Feature points (with plane-distance s) + the usual layout minus shell points near creases.
@@ -337,15 +345,15 @@ def _feature_state(
         fpts, fs = snap_to_grid(fpts, fs, planes, position_bits)
     # A point can see its planes from the wrong side (saddle corners, thin parts, a face pair reaching into
     # another part of the shape): keep only those whose plane distance has the input's sign.
-    agree = np.sign(fs) == np.sign(signed_distance(fpts, vertices, faces))
+    agree = np.sign(fs) == np.sign(signed_distance(fpts, vertices, faces, tree))
     fpts, fs = fpts[agree], fs[agree]
-    rest = initial_points(vertices, faces, max(n - len(fpts), N_CORNERS + 1), rng, **kwargs)
+    rest = initial_points(vertices, faces, max(n - len(fpts), N_CORNERS + 1), rng, tree=tree, **kwargs)
     far = crease_distance(feat, rest) >= CREASE_CLEARANCE * spacing
     far[:N_CORNERS] = True
     rest = rest[far]
     points = np.concatenate([rest[:N_CORNERS], fpts, rest[N_CORNERS:]]).astype(np.float32)
     points = _separate_duplicates(points, rng, scale=1e-4 * spacing).astype(np.float32)
-    s = signed_distance(points, vertices, faces)
+    s = signed_distance(points, vertices, faces, tree)
     s[N_CORNERS : N_CORNERS + len(fpts)] = fs
     return points, s.astype(np.float32), len(fpts)
 

@@ -184,9 +184,8 @@ def _resample(params: Params, grid: Grid, n_target: int, ctx: FitContext) -> Par
         if near is not None and n_new > 0:
             # A point next to the surface takes the input's signed distance, as at the start: s interpolated in the
             # old tets is wrong by up to the old tets' error there and can put it on the wrong side.
-            sdf = signed_distance(
-                points[-n_new:].cpu().numpy().astype(np.float64), ctx.surface.vertices, ctx.surface.faces
-            )
+            new = points[-n_new:].cpu().numpy().astype(np.float64)
+            sdf = signed_distance(new, ctx.surface.vertices, ctx.surface.faces, ctx.surface.tree)
             sdf[sdf == 0] = MIN_ABS_S
             s = torch.cat([s[:-n_new], torch.from_numpy(sdf).to(s)])
         if pinned is not None:

@@ -42,11 +42,13 @@ class SurfaceTree:
 
     def query(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Squared distance (n,), closest face (n,) int64 and closest point (n,3) on the mesh of each of points
-        (n,3), in the order given."""
+        (n,3), in the order given. ValueError when the mesh has no faces."""
         p = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
         n = len(p)
         if n == 0:
             return np.zeros(0), np.zeros(0, dtype=np.int64), np.zeros((0, 3))
+        if len(self.faces) == 0:  # libigl's query of an empty tree crashes the process
+            raise ValueError("cannot find closest points on a mesh without faces")
         order = _spatial_order(p)
         batch = p[order]
         if PAD_FROM <= n < PARALLEL_MIN_QUERIES:
