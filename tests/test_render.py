@@ -222,9 +222,17 @@ def test_flat_normals_point_outward_on_the_visible_side(device):
 
 # ------------------------------------------------------------ z-buffer
 
+# Pixels whose centre is this close to a triangle's edge may go either way between float32 and float64.
+EDGE_TIE = 1e-3
 
-def _reference_face_ids(verts: torch.Tensor, faces: torch.Tensor, cams: Cameras, size: int) -> np.ndarray:
-    """Brute force in float64 numpy: every pixel centre against every triangle."""
+
+def _reference_face_ids(
+    verts: torch.Tensor, faces: torch.Tensor, cams: Cameras, size: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Brute force in float64 numpy: every pixel centre against every triangle.
+
+    Returns the nearest face id (size,size) (-1: none), the two nearest depths (size,size,2) and whether the
+    centre lies within EDGE_TIE pixels of some triangle's edge (size,size), where float32 may decide otherwise."""
     proj = cams.to(dtype=torch.float64).project(verts.double(), size).cpu().numpy()[0]  # (V,3)
     tri = proj[faces.cpu().numpy()]  # (F,3,3)
     ys, xs = np.mgrid[0:size, 0:size] + 0.5
@@ -245,7 +253,12 @@ def _reference_face_ids(verts: torch.Tensor, faces: torch.Tensor, cams: Cameras,
     z = np.concatenate([z, np.full_like(z[:, :1], np.inf)], axis=1)  # so that there are always two layers
     best = z.argmin(1)
     ids = np.where(np.isfinite(z.min(1)), best, -1).reshape(size, size)
-    return ids, np.sort(z, 1)[:, :2].reshape(size, size, 2)
+    # signed distance (pixels) of the centre to each edge line, positive inside; near an edge of the triangle
+    lengths = [np.linalg.norm(c - b, axis=-1), np.linalg.norm(a - c, axis=-1), np.linalg.norm(b - a, axis=-1)]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        dist = np.stack([e * np.sign(area) / ln for e, ln in zip((e0, e1, e2), lengths, strict=True)], -1)
+    near_edge = ((np.abs(dist) < EDGE_TIE).any(-1) & (dist > -EDGE_TIE).all(-1)).any(1).reshape(size, size)
+    return ids, np.sort(z, 1)[:, :2].reshape(size, size, 2), near_edge
 
 
 @settings(max_examples=25, deadline=None)
@@ -258,9 +271,10 @@ def test_zbuffer_matches_brute_force_on_random_triangle_soups(seed, n_tri):
     cams = look_at_cameras(torch.tensor(2.8 * direction / np.linalg.norm(direction)))
     size = 24
     got = rasterize(verts, faces, cams, size).face_id[0].numpy()
-    want, depths = _reference_face_ids(verts, faces, cams, size)
+    want, depths, near_edge = _reference_face_ids(verts, faces, cams, size)
     # ignore pixels where the two nearest surfaces are within float32 resolution, or a centre sits on an edge
-    tie = np.isfinite(depths[..., 1]) & (depths[..., 1] - depths[..., 0] < 1e-5 * depths[..., 0])
+    # (seed 34731, 8 triangles: two centres 1e-4 px from an edge, covered in float32, not in float64)
+    tie = np.isfinite(depths[..., 1]) & (depths[..., 1] - depths[..., 0] < 1e-5 * depths[..., 0]) | near_edge
     differ = (got != want) & ~tie
     assert differ.sum() <= 1, f"{differ.sum()} pixels differ"
 
