@@ -4,6 +4,8 @@
   the reference.
 * `tetweave_codec.geometry._mt_native` (tetweave_codec/geometry/_mt_native.c): the integer topology of marching
   tets; geometry/marching_tets.py is the reference.
+* `tetweave_codec.geometry._intersect_native` (tetweave_codec/geometry/_intersect_native.c): the self-intersection
+  test of the decoder's smoothing check; geometry/intersections.py is the reference.
 
 Each Python module falls back to its numpy/Python code when its extension is absent, with identical output.
 `optional=True`: a machine without a C compiler still installs. The flags keep the binary64 results identical to
@@ -22,6 +24,12 @@ setup(
         Extension(
             "tetweave_codec.geometry._mt_native",
             ["tetweave_codec/geometry/_mt_native.c"],
+            extra_compile_args=FLAGS,
+            optional=True,
+        ),
+        Extension(
+            "tetweave_codec.geometry._intersect_native",
+            ["tetweave_codec/geometry/_intersect_native.c"],
             extra_compile_args=FLAGS,
             optional=True,
         ),

@@ -2,10 +2,10 @@
 
 Seed files are valid version-2 files: analytic point sets written with `quantize_file` + `pack_v2` (lattice
 cells in a shell around a torus or a sphere, 6-12 position bits, SH degrees -1..3, both Delaunay flags, s
-predicted or not, octree context-coded (flags bit 2) or not; plus the edge cases N = 0 and N = 1..5) and any
-real files given with ``--files``. Each case applies 1-3 mutations that know the layout (header fields, the
-three section sizes, the sections' bytes) and then, in 95 % of cases, rewrites the section sizes and recomputes
-the CRC so that the mutation reaches the parsers behind the checksum:
+predicted or not, octree context-coded (flags bit 2) or not, 0-3 smoothing steps (flags bits 3-4); plus the edge
+cases N = 0 and N = 1..5) and any real files given with ``--files``. Each case applies 1-3 mutations that know
+the layout (header fields, the three section sizes, the sections' bytes) and then, in 95 % of cases, rewrites the
+section sizes and recomputes the CRC so that the mutation reaches the parsers behind the checksum:
 
 * ``field``: one header field (flags, SH degree, position bits, N, scale, offset, s step, a c step) set to an
   extreme or boundary value of its type (0, 1, max, max + 1, NaN, inf, subnormal, the value +-1, ...) or to
@@ -20,8 +20,9 @@ the CRC so that the mutation reaches the parsers behind the checksum:
 
 Every case decodes in a worker process (memory capped at ``--memory-gb``) with a time limit, through
 `decode_detailed` with the file's own backend flag; a decoded mesh must pass `marching_tets.check_manifold`
-(closed) and manifold3d. Outcomes: ``rejected`` (ContainerError), ``closed`` (a non-empty closed 2-manifold),
-``empty`` (no surface: one sign only, or points spanning no volume), and the failures ``non_manifold``,
+(closed) and manifold3d, and a smoothed one must have no self-intersecting faces. Outcomes: ``rejected``
+(ContainerError), ``closed`` (a non-empty closed 2-manifold), ``empty`` (no surface: one sign only, or points
+spanning no volume), and the failures ``non_manifold``,
 ``error`` (any other exception, TopologyError included), ``timeout`` and ``crash`` (the worker died).
 Case i uses the generator ``numpy.random.default_rng([seed, i])``, so ``--only i`` replays one case.
 
@@ -43,7 +44,14 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from tetweave_codec.formats import quantize as Q
-from tetweave_codec.formats.common import CHECKSUM_SIZE, FLAG_OCTREE_CONTEXTS, FLAG_QHULL, FLAG_S_PREDICTED, seal
+from tetweave_codec.formats.common import (
+    CHECKSUM_SIZE,
+    FLAG_OCTREE_CONTEXTS,
+    FLAG_QHULL,
+    FLAG_S_PREDICTED,
+    seal,
+    smoothing_flags,
+)
 from tetweave_codec.formats.tw2 import FIXED_SIZE, MAX_POINTS, header_size, pack_v2, quantize_file
 
 FAILURES = ("non_manifold", "error", "timeout", "crash")
@@ -103,6 +111,7 @@ def seed_files(seed: int = 0, max_points: int = 3000) -> list[tuple[str, bytes]]
         c = rng.normal(scale=0.4, size=(len(cells), q))
         flags = (FLAG_QHULL if k % 3 == 1 else 0) | (FLAG_S_PREDICTED if k % 4 != 3 else 0)
         flags |= FLAG_OCTREE_CONTEXTS if k % 5 in (1, 2, 4) else 0  # context-coded positions in 3 of 5
+        flags |= smoothing_flags(k % 4)  # smoothing 0-3 steps
         f, _ = quantize_file(
             Q.dequantize_positions(cells, bits), sdf + rng.normal(scale=2e-3, size=len(sdf)), c, degree,
             position_bits=bits, s_step=float(rng.choice([2e-4, 5e-4, 1e-3])),
@@ -357,6 +366,15 @@ def classify_result(result) -> tuple[str, str]:
     status = manifold3d.Manifold(mesh).status()
     if status != manifold3d.Error.NoError:
         return "non_manifold", f"manifold3d: {status.name}"
+    if result.container.smoothing:  # smoothing is the one decoder step that may move a face through another
+        from tetweave_codec.geometry.intersections import self_intersecting_faces
+
+        try:
+            crossing = int(self_intersecting_faces(local, f).sum())
+        except RuntimeError:  # the decoder falls back to the unsmoothed surface in this case too
+            crossing = 0
+        if crossing:
+            return "non_manifold", f"{crossing} self-intersecting faces after smoothing"
     return "closed", f"{result.backend} {result.container.num_points} points {len(f)} faces"
 
 

@@ -134,6 +134,13 @@ def _progress_lines(every_s: float = PROGRESS_LINE_SECONDS):
     default=None,
     help="v2: quantization step of the SH coefficients (every band).  [default: 0.3 at 4k points, 0.2 at 16k]",
 )
+@click.option(
+    "--smoothing",
+    type=click.IntRange(0, 3),
+    default=None,
+    help="v2: Taubin smoothing steps the decoder applies to the surface (the fit optimizes the smoothed surface; "
+    "0 = none).  [default: 1; 0 with --format-version 1]",
+)
 @device_option
 @click.option("--seed", type=int, default=0, help="Seed of every random choice: same seed, same bytes.")
 @threads_option
@@ -154,6 +161,7 @@ def encode(
     position_bits: int | None,
     s_step: float | None,
     c_step: float | None,
+    smoothing: int | None,
     device: str,
     seed: int,
     threads: int,
@@ -183,6 +191,7 @@ def encode(
         position_bits=position_bits,
         s_step=s_step,
         c_step=c_step,
+        smoothing=smoothing,
         device=device,
         seed=seed,
         threads=threads or (BATCH_THREADS if batch else 0),

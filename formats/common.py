@@ -20,10 +20,25 @@ CHECKSUM_SIZE = 4  # CRC-32 (zlib) of every byte before it, the file's last 4 by
 FLAG_QHULL = 1 << 0  # the encoder's Delaunay backend was Qhull (else TetGen)
 FLAG_S_PREDICTED = 1 << 1  # version 2: the s stream holds residuals of the neighbour prediction (formats/predict.py)
 FLAG_OCTREE_CONTEXTS = 1 << 2  # version 2: octree levels may be coded bit by bit with neighbour contexts (octree.py)
+# version 2, bits 3-4: the number of Taubin smoothing steps the decoder applies (geometry/smoothing.py), 0-3
+SMOOTHING_SHIFT = 3
+FLAG_SMOOTHING = 0b11 << SMOOTHING_SHIFT
 KNOWN_FLAGS = FLAG_QHULL  # version 1
-KNOWN_FLAGS_V2 = FLAG_QHULL | FLAG_S_PREDICTED | FLAG_OCTREE_CONTEXTS
+KNOWN_FLAGS_V2 = FLAG_QHULL | FLAG_S_PREDICTED | FLAG_OCTREE_CONTEXTS | FLAG_SMOOTHING
 # Largest normalized coordinate of version 1 (any finite float16); version 2's is the grid's, quantize.GRID_BOUND.
 COORDINATE_BOUND_V1 = float(np.finfo(np.float16).max)
+
+
+def smoothing_flags(steps: int) -> int:
+    """Flags bits recording `steps` (0-3) Taubin smoothing steps of the decoded surface (version 2)."""
+    if not 0 <= int(steps) <= FLAG_SMOOTHING >> SMOOTHING_SHIFT:
+        raise ValueError(f"smoothing steps must be 0-{FLAG_SMOOTHING >> SMOOTHING_SHIFT}, got {steps}")
+    return int(steps) << SMOOTHING_SHIFT
+
+
+def smoothing_steps(flags: int) -> int:
+    """The Taubin smoothing steps a file's flags ask for (0 for version 1, whose reader rejects the bits)."""
+    return (int(flags) & FLAG_SMOOTHING) >> SMOOTHING_SHIFT
 
 
 def backend_flags(backend: str) -> int:

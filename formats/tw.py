@@ -99,6 +99,11 @@ class TetWeaveFile:
         """Delaunay backend the encoder used ("tetgen" or "qhull"); the decoder must use the same."""
         return backend_name(self.flags)
 
+    @property
+    def smoothing(self) -> int:
+        """Version 1 files are never smoothed."""
+        return 0
+
 
 def payload_size(num_points: int, sh_degree: int) -> int:
     """Raw payload size in bytes for N points and an SH degree: 2 * N * (4 + q)."""

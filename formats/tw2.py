@@ -8,7 +8,7 @@ offset  size       type     field
 0       8          bytes    magic ``89 54 57 56 0D 0A 1A 0A`` (as version 1)
 8       2          uint16   version = 2
 10      1          uint8    flags; bit 0: Delaunay backend (0 = TetGen, 1 = Qhull); bit 1: s predicted;
-                            bit 2: octree context-coded; others 0
+                            bit 2: octree context-coded; bits 3-4: smoothing steps 0-3; others 0
 11      1          int8     SH degree d in -1..3
 12      1          uint8    position bits b in 6..16
 13      4          uint32   N, number of points (<= MAX_POINTS)
@@ -50,6 +50,7 @@ from .common import (
     read_transform,
     require_size,
     seal,
+    smoothing_steps,
 )
 
 VERSION = 2
@@ -75,7 +76,8 @@ class TetWeaveFileV2:
     c_sym: (N, q) int64 c symbols (`quantize.quantize_c`), q = num_coeffs(sh_degree).
     position_bits: b in 6..16. s_step: float (stored as float32). c_band_steps: d + 1 floats (float32).
     sh_degree: -1..3. scale, offset: ``original = normalized * scale + offset``. flags: bit 0 = Qhull, bit 1 = s
-    coded as prediction residuals, bit 2 = octree levels context-coded (what the encoder writes).
+    coded as prediction residuals, bit 2 = octree levels context-coded (what the encoder writes), bits 3-4 =
+    Taubin smoothing steps of the decoded surface (`smoothing`).
     sizes: byte size of each part of the file it was read from ("header", "positions", "s", "c",
     "checksum"), or None for a file built in memory.
 
@@ -103,6 +105,11 @@ class TetWeaveFileV2:
     @property
     def backend(self) -> str:
         return backend_name(self.flags)
+
+    @property
+    def smoothing(self) -> int:
+        """Taubin smoothing steps the decoder applies to the extracted surface (flags bits 3-4)."""
+        return smoothing_steps(self.flags)
 
     @cached_property
     def points(self) -> np.ndarray:

@@ -11,9 +11,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from tetweave_codec.geometry.intersections import self_intersecting_faces
 from tetweave_codec.metrics.common import MetricOptions
 from tetweave_codec.metrics.fidelity import chamfer_distance, fidelity, prepare_mesh, prepare_reference
-from tetweave_codec.metrics.intersections import self_intersecting_faces
 from tetweave_codec.metrics.manifold import topology
 from tetweave_codec.metrics.quality import triangle_quality
 from tetweave_codec.metrics.summary import evaluate, mesh_report

@@ -6,6 +6,9 @@ float16-rounded arrays), so "what the encoder printed" and "what the decoder wri
 
 The surface is closed where the inside region reaches the convex hull of the points (cap triangles on the
 hull, see `marching_tets`), so every decoded mesh is watertight and 2-manifold, or empty (all s of one sign).
+A version-2 file may ask for Taubin smoothing of that surface (flags bits 3-4, geometry/smoothing.py): the
+connectivity stays, and the vertices of any face that the smoothing made cross another are put back, so the
+mesh stays free of self-intersections.
 """
 
 from __future__ import annotations
@@ -19,6 +22,7 @@ import numpy as np
 from tetweave_codec.geometry.delaunay import available_backends, tetrahedralize
 from tetweave_codec.geometry.marching_tets import marching_tets_numpy
 from tetweave_codec.geometry.sh import check_degree, num_coeffs
+from tetweave_codec.geometry.smoothing import restore_crossings, taubin
 
 
 class DecodeWarning(UserWarning):
@@ -33,8 +37,10 @@ class DecodeResult:
     container: the parsed file (formats.tw.TetWeaveFile for version 1, formats.tw2.TetWeaveFileV2 for version 2;
         both expose `points`, `s`, `c`, which the decoder converts to float64 -- v2's are its dequantized values).
     backend: Delaunay backend actually used.
-    seconds: wall time per stage: "unpack", "delaunay", "marching_tets".
+    seconds: wall time per stage: "unpack", "delaunay", "marching_tets", "smoothing" (smoothing and its
+        self-intersection check; 0 for files without smoothing).
     num_tets: size of the tetrahedralization.
+    restored: vertices the self-intersection check put back to their unsmoothed place.
     """
 
     vertices: np.ndarray
@@ -43,6 +49,7 @@ class DecodeResult:
     backend: str
     seconds: dict[str, float] = field(default_factory=dict)
     num_tets: int = 0
+    restored: int = 0
 
 
 def mesh_from_points(
@@ -51,6 +58,7 @@ def mesh_from_points(
     c: np.ndarray | None,
     sh_degree: int,
     backend: str = "auto",
+    smoothing: int = 0,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Extract the TetWeave surface of a point cloud (in the frame of `points`).
 
@@ -60,14 +68,16 @@ def mesh_from_points(
         c: (N, q) SH coefficients, q = (sh_degree + 1) ** 2; None or (N, 0) when sh_degree is -1.
         sh_degree: -1..3.
         backend: Delaunay backend, "auto", "tetgen" or "qhull" (must match the container's flags).
+        smoothing: Taubin steps 0-3 (the container's flags bits 3-4).
     Returns:
         vertices (V, 3) float64, faces (F, 3) int64 (outward; both empty when s has one sign only).
     """
-    result = _extract(points, s, c, sh_degree, backend, {}, time.perf_counter)
+    result = _extract(points, s, c, sh_degree, backend, {}, time.perf_counter, smoothing)
     return result[0], result[1]
 
 
-def _extract(points, s, c, sh_degree, backend, seconds, clock):
+def _extract(points, s, c, sh_degree, backend, seconds, clock, smoothing=0):
+    """(vertices, faces, tetrahedralization, restored vertex count), timing each stage into `seconds`."""
     check_degree(sh_degree)
     pts = np.asarray(points, dtype=np.float64)
     s = np.asarray(s, dtype=np.float64).reshape(-1)
@@ -85,9 +95,13 @@ def _extract(points, s, c, sh_degree, backend, seconds, clock):
     t1 = clock()
     mt = marching_tets_numpy(pts, tz.tets, s, coeffs, tz.hull_faces)
     t2 = clock()
+    vertices, restored = mt.vertices, 0
+    if smoothing:
+        vertices, restored = restore_crossings(taubin(mt.vertices, mt.faces, smoothing), mt.vertices, mt.faces)
     seconds["delaunay"] = t1 - t0
     seconds["marching_tets"] = t2 - t1
-    return mt.vertices, mt.faces, tz
+    seconds["smoothing"] = clock() - t2
+    return vertices, mt.faces, tz, restored
 
 
 def decode(data: bytes, backend: str | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -123,6 +137,6 @@ def decode_detailed(data: bytes, backend: str | None = None, clock=time.perf_cou
                 stacklevel=2,
             )
             backend = available_backends()[0]
-    vertices, faces, tz = _extract(tw.points, tw.s, tw.c, tw.sh_degree, backend, seconds, clock)
+    vertices, faces, tz, restored = _extract(tw.points, tw.s, tw.c, tw.sh_degree, backend, seconds, clock, tw.smoothing)
     vertices = vertices * float(tw.scale) + tw.offset
-    return DecodeResult(vertices, faces, tw, tz.backend, seconds, len(tz.tets))
+    return DecodeResult(vertices, faces, tw, tz.backend, seconds, len(tz.tets), restored)

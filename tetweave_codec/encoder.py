@@ -17,11 +17,19 @@ import numpy as np
 import torch
 
 from tetweave_codec.errors import InputError
-from tetweave_codec.fit.config import FitConfig, Quantization, default_quantization, scaled_schedule, schedule_for
+from tetweave_codec.fit.config import (
+    DEFAULT_SMOOTHING,
+    FitConfig,
+    Quantization,
+    default_quantization,
+    scaled_schedule,
+    schedule_for,
+)
 from tetweave_codec.fit.finish import FinishResult, finish
 from tetweave_codec.fit.loop import FitResult, deterministic_torch
 from tetweave_codec.fit.step import FitContext, Params, ProgressFn
 from tetweave_codec.geometry.sh import check_degree
+from tetweave_codec.geometry.smoothing import MAX_STEPS as MAX_SMOOTHING_STEPS
 from tetweave_codec.geometry.triangles import face_areas
 
 DEFAULT_POINTS = 16384
@@ -87,6 +95,7 @@ def encode(
     quantization: Quantization | None = None,
     size: int | None = None,
     max_error: float | None = None,
+    smoothing: int | None = None,
 ) -> EncodeResult:
     """Fit a TetWeave representation to a triangle mesh and return the `.tw` bytes and the decoded mesh.
 
@@ -101,6 +110,8 @@ def encode(
         chosen by rate_control.py; `points` and `quantization` are ignored).
     max_error: rate control, the decoded mesh's Chamfer distance to the input (normalized frame, the summary's
         metric) is at most `max_error`, at the smallest size rate control finds.
+    smoothing: Taubin steps 0-3 the decoder applies to the surface (the fit optimizes the smoothed one); None =
+        fit.config.DEFAULT_SMOOTHING for container version 2, 0 for version 1 (which cannot store it).
     Deterministic: the same input, options, seed, device and thread count give the same bytes.
     """
     v, f = _validate(vertices, faces)
@@ -116,6 +127,12 @@ def encode(
         raise InputError("--size and --max-error need container version 2")
     if size is not None and max_error is not None:
         raise InputError("give either a size or a maximum error, not both")
+    if smoothing is None:
+        smoothing = DEFAULT_SMOOTHING if container_version == 2 else 0
+    if not 0 <= smoothing <= MAX_SMOOTHING_STEPS:
+        raise InputError(f"smoothing must be 0-{MAX_SMOOTHING_STEPS} steps, got {smoothing}")
+    if smoothing and container_version != 2:
+        raise InputError("smoothing needs container version 2")
     job = Job(
         v,
         f,
@@ -127,6 +144,7 @@ def encode(
         init,
         progress,
         scale_iterations=iters is None,
+        smoothing=smoothing,
     )
     if size is not None:
         from tetweave_codec.rate_control import encode_to_size
@@ -151,9 +169,11 @@ class Job:
     path shares: main stage, packing, decoding and the summary. Rate control (rate_control.py) runs several fits
     of one Job."""
 
-    def __init__(self, v, f, sh_degree, schedule, quality, device, seed, init, progress, scale_iterations=True):
+    def __init__(
+        self, v, f, sh_degree, schedule, quality, device, seed, init, progress, scale_iterations=True, smoothing=0
+    ):
         """scale_iterations: run `fit.config.scaled_schedule` of `schedule` for each point count (off when the
-        caller fixed the iterations)."""
+        caller fixed the iterations). smoothing: the decoder's Taubin steps (stored in the file)."""
         from tetweave_codec.meshio import normalize
 
         self.t_start = time.perf_counter()
@@ -162,6 +182,7 @@ class Job:
         self.sh_degree, self.schedule, self.quality = sh_degree, schedule, quality
         self.device, self.seed, self.init, self.progress = device, seed, init, progress
         self.scale_iterations = scale_iterations
+        self.smoothing = smoothing
         self.seconds: dict[str, float] = {}
 
     def config(self, points: int, quantization: Quantization | None) -> FitConfig:
@@ -172,6 +193,7 @@ class Job:
             init=self.init,
             seed=self.seed,
             quantization=quantization,
+            smoothing=self.smoothing,
         )
 
     def main_stage(self, points: int, quantization: Quantization | None) -> tuple[FitContext, Params]:
@@ -182,7 +204,9 @@ class Job:
 
     def pack(self, fin: FinishResult, ctx: FitContext) -> bytes:
         return pack_result(
-            FitResult(fin, self.sh_degree, ctx.backend, ctx.seconds, ctx.history), self.scale, self.offset
+            FitResult(fin, self.sh_degree, ctx.backend, ctx.seconds, ctx.history, ctx.config.smoothing),
+            self.scale,
+            self.offset,
         )
 
     def chamfer(self, out_v: np.ndarray, out_f: np.ndarray) -> float:
@@ -237,7 +261,7 @@ class Job:
 def pack_result(result: FitResult, scale: float, offset: np.ndarray) -> bytes:
     """The `.tw` bytes of a fit: version 1 or 2 after `result.finish.version`."""
     from tetweave_codec.formats import octree
-    from tetweave_codec.formats.common import FLAG_OCTREE_CONTEXTS, FLAG_S_PREDICTED
+    from tetweave_codec.formats.common import FLAG_OCTREE_CONTEXTS, FLAG_S_PREDICTED, smoothing_flags
     from tetweave_codec.formats.tw import TetWeaveFile, TetWeaveFileV2, backend_flags, pack, pack_v2
 
     fin = result.finish
@@ -248,7 +272,10 @@ def pack_result(result: FitResult, scale: float, offset: np.ndarray) -> bytes:
         "flags": backend_flags(result.backend),
     }
     if fin.version == 1:
+        if result.smoothing:
+            raise ValueError("container version 1 cannot store smoothing")
         return pack(TetWeaveFile(points=fin.points, s=fin.s, c=fin.c, **shared))
+    shared["flags"] |= smoothing_flags(result.smoothing)
     q = fin.quantization
     steps = tuple(q.c_band_steps[: result.sh_degree + 1])
     shared["flags"] |= FLAG_S_PREDICTED

@@ -181,7 +181,16 @@ class FitConfig:
     seed: int = 0
     # None: container v1 (float16 positions, s and c); else container v2 with this quantization.
     quantization: Quantization | None = field(default_factory=Quantization)
+    # Taubin steps the decoder applies to the surface (container v2 flags bits 3-4, geometry/smoothing.py); the fit
+    # optimizes the smoothed surface.
+    smoothing: int = 0
 
+
+# Taubin steps of `tetweave encode` (container v2). Measured with benchmarks/fit_ab.py, one run per setting
+# (benchmarks/results/smoothing.md): bytes x Chamfer against no smoothing, 1 step 0.80-1.01 (median 0.95 over 8
+# cases; spot 0.80-0.86, igea 0.96-1.01, stanford-bunny 0.94-0.96, fandisk 1.00); 2 steps helped spot more
+# (0.78) but cost igea 11 % and fandisk 5 %.
+DEFAULT_SMOOTHING = 1
 
 # The presets are sized for ITERATION_POINTS points; smaller fits run up to MAX_ITERATION_SCALE times more
 # iterations (scale sqrt(ITERATION_POINTS / points)), which costs about the time the smaller fit saves per

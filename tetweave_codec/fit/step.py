@@ -21,6 +21,7 @@ from tetweave_codec.fit.surface_loss import SurfaceTarget
 from tetweave_codec.fit.targets import Targets
 from tetweave_codec.geometry.delaunay import tetrahedralize
 from tetweave_codec.geometry.marching_tets import Topology, marching_tets, marching_tets_topology
+from tetweave_codec.geometry.smoothing import taubin
 from tetweave_codec.render import render_maps
 
 ProgressFn = Callable[[str, int, int, dict], None]
@@ -109,19 +110,25 @@ def triangulate(points: Tensor | np.ndarray, backend: str, device: torch.device 
     return Grid(torch.from_numpy(tri.tets).to(device), torch.from_numpy(tri.hull_faces).to(device))
 
 
-def extract(points: Tensor, s: Tensor, c: Tensor, grid: Grid, cache: TopologyCache | None = None):
-    """The mesh exactly as the decoder extracts it (hull caps included), differentiable.
+def extract(points: Tensor, s: Tensor, c: Tensor, grid: Grid, cache: TopologyCache | None = None, smoothing: int = 0):
+    """The mesh exactly as the decoder extracts it (hull caps included, `smoothing` Taubin steps), differentiable.
 
     With a `cache`, the marching-tets topology of the previous call is reused when the grid and every sign of s
     are the same (the result is identical either way)."""
     if cache is None:
-        return marching_tets(points, grid.tets, s, c, hull_faces=grid.hull)
+        return _smoothed(marching_tets(points, grid.tets, s, c, hull_faces=grid.hull), smoothing)
     with torch.no_grad():
         inside = s.detach() < 0
         if cache.tets is not grid.tets or cache.inside is None or not torch.equal(cache.inside, inside):
             cache.tets, cache.inside = grid.tets, inside
             cache.topology = marching_tets_topology(grid.tets, inside, grid.hull)
-    return marching_tets(points, grid.tets, s, c, hull_faces=grid.hull, topology=cache.topology)
+    return _smoothed(marching_tets(points, grid.tets, s, c, hull_faces=grid.hull, topology=cache.topology), smoothing)
+
+
+def _smoothed(mt, steps: int):
+    """mt with its vertices after `steps` Taubin steps (the decoder's smoothing; its restoring of crossing faces
+    is left to the decoder: it touches a handful of vertices and has no gradient)."""
+    return mt if steps <= 0 else mt._replace(vertices=taubin(mt.vertices, mt.faces, steps))
 
 
 @dataclass
@@ -151,7 +158,7 @@ def regularized_loss(
     factor m instead of m times (saves ~90 ms per iteration at 16K points).
     """
     weights = ctx.config.weights
-    mt = extract(points, s, c, grid, ctx.topology)
+    mt = extract(points, s, c, grid, ctx.topology, ctx.config.smoothing)
     parts: dict[str, float] = {}
     total = losses.sign_loss(s, mt.edges) * weights.sign
     parts["sign"] = float(total.detach())

@@ -9,9 +9,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from tetweave_codec.geometry.intersections import self_intersecting_faces
 from tetweave_codec.metrics.common import MetricOptions, as_mesh, sorted_unique
 from tetweave_codec.metrics.fidelity import Reference, fidelity, prepare_mesh, to_frame
-from tetweave_codec.metrics.intersections import self_intersecting_faces
 from tetweave_codec.metrics.manifold import topology
 from tetweave_codec.metrics.quality import triangle_quality
 

@@ -42,7 +42,8 @@ class EncodeOptions:
 
     sh_degree: "none" or "0".."3". size: target bytes; max_error: target Chamfer distance (rate control).
     format_version: 1 or 2. position_bits / s_step / c_step: v2 quantization overrides (None = the defaults for
-    `points`). threads: torch CPU threads (0 = torch's default). measure: compute the Chamfer distance.
+    `points`). smoothing: the decoder's Taubin steps (None = the encoder's default). threads: torch CPU threads
+    (0 = torch's default). measure: compute the Chamfer distance.
     """
 
     points: int = 16384
@@ -55,6 +56,7 @@ class EncodeOptions:
     position_bits: int | None = None
     s_step: float | None = None
     c_step: float | None = None
+    smoothing: int | None = None
     device: str = "auto"
     seed: int = 0
     threads: int = 0
@@ -87,6 +89,7 @@ class EncodeOptions:
             size=self.size,
             max_error=self.max_error,
             measure=self.measure,
+            smoothing=self.smoothing,
         )
 
 

@@ -1,20 +1,32 @@
-"""Self-intersections of a mesh.
+"""Self-intersections of a mesh: the decoder's check after smoothing (geometry.smoothing) and a metric.
 
-- ``self_intersect_pct``: % of faces that properly intersect another face. Candidate pairs come from a
+- ``self_intersecting_faces``: the faces that properly intersect another face. Candidate pairs come from a
   uniform grid over face bounding boxes; a pair sharing no vertex intersects when an edge of one crosses the
   interior of the other (strict orientation tests in float64), or, if the two are coplanar, when their
   interiors overlap in the plane; a pair sharing exactly one vertex intersects when the edge opposite the
   shared vertex of one crosses the interior of the other (a fold around the vertex). Pairs sharing an edge
   are not tested (their only possible intersection is an exactly coplanar fold), and touching without
   crossing is not counted.
+
+A compiled fast path (geometry/_intersect_native.c, built by setup.py when a C compiler is there) makes the same
+grid decisions and evaluates the same predicate with every binary64 operation in the same order (the arithmetic
+below is written out for that reason: no einsum, no np.cross, no norm), so both flag the same faces
+(tests/test_intersections.py); this module stays the reference and the fallback (`NATIVE`, environment
+TETWEAVE_NATIVE=0).
 """
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 
-from tetweave_codec.geometry.triangles import face_areas, triangle_cross
-from tetweave_codec.metrics.common import as_mesh, sorted_unique
+try:  # the compiled fast path (optional; identical output)
+    from tetweave_codec.geometry import _intersect_native
+except ImportError:  # not built: the numpy code below
+    _intersect_native = None
+NATIVE = _intersect_native is not None and os.environ.get("TETWEAVE_NATIVE", "1") != "0"
+
 
 _MAX_CANDIDATE_PAIRS = 30_000_000  # refine the grid rather than materialise more pairs than this
 _PAIR_CHUNK = 500_000
@@ -55,7 +67,8 @@ def _grid_pairs(lo: np.ndarray, hi: np.ndarray, cell: float) -> tuple[np.ndarray
     step = np.arange(total) - np.repeat(np.cumsum(after) - after, after) + 1
     a, b = box[first], box[first + step]
     # a pair of boxes sharing several cells appears once per cell; dedupe on one int64 key (fast sort)
-    key = sorted_unique(np.minimum(a, b) * n + np.maximum(a, b))
+    key = np.sort(np.minimum(a, b) * n + np.maximum(a, b))  # np.unique hashes: ~60x slower on millions of keys
+    key = key[np.concatenate([[True], key[1:] != key[:-1]])]
     return np.stack([key // n, key % n], axis=1), ""
 
 
@@ -80,9 +93,26 @@ def _candidate_pairs(tri: np.ndarray) -> np.ndarray:
     return pairs[overlap]
 
 
+def _dot(u, w):
+    """Row-wise u . w of (P,3) arrays, summed in the order x, y, z (as the compiled path does)."""
+    return (u[:, 0] * w[:, 0] + u[:, 1] * w[:, 1]) + u[:, 2] * w[:, 2]
+
+
+def _cross(u, w):
+    """Row-wise u x w of (P,3) arrays (np.cross's formula, written out so that the compiled path matches it)."""
+    return np.stack(
+        [
+            u[:, 1] * w[:, 2] - u[:, 2] * w[:, 1],
+            u[:, 2] * w[:, 0] - u[:, 0] * w[:, 2],
+            u[:, 0] * w[:, 1] - u[:, 1] * w[:, 0],
+        ],
+        axis=1,
+    )
+
+
 def _orient(a: np.ndarray, b: np.ndarray, c: np.ndarray, d: np.ndarray) -> np.ndarray:
-    """Signed volume (×6) of tetrahedron (a, b, c, d); positive when d is on the side of (b-a)×(c-a)."""
-    return np.einsum("nd,nd->n", np.cross(b - a, c - a), d - a)
+    """Signed volume (x6) of tetrahedron (a, b, c, d); positive when d is on the side of (b-a)x(c-a)."""
+    return _dot(_cross(b - a, c - a), d - a)
 
 
 def _segment_crosses_triangle(p, q, a, b, c) -> np.ndarray:
@@ -94,7 +124,8 @@ def _segment_crosses_triangle(p, q, a, b, c) -> np.ndarray:
 
 
 def _coplanar_overlap(t1: np.ndarray, t2: np.ndarray, normal: np.ndarray) -> np.ndarray:
-    """Interiors of coplanar triangles t1, t2 (P,3,3) overlap: projected on the dominant plane of `normal`."""
+    """Interiors of coplanar triangles t1, t2 (P,3,3) overlap: projected on the dominant plane of `normal`
+    (the first axis of largest |normal|)."""
     axis = np.argmax(np.abs(normal), axis=1)
     keep = np.broadcast_to(np.array([[1, 2], [0, 2], [0, 1]])[axis][:, None, :], (len(t1), 3, 2))
     u, w = np.take_along_axis(t1, keep, axis=2), np.take_along_axis(t2, keep, axis=2)
@@ -106,7 +137,10 @@ def _coplanar_overlap(t1: np.ndarray, t2: np.ndarray, normal: np.ndarray) -> np.
         d1, d2, d3 = cross2(t[:, 0], t[:, 1], p), cross2(t[:, 1], t[:, 2], p), cross2(t[:, 2], t[:, 0], p)
         return ((d1 > 0) & (d2 > 0) & (d3 > 0)) | ((d1 < 0) & (d2 < 0) & (d3 < 0))
 
-    hit = strictly_inside(u.mean(axis=1), w) | strictly_inside(w.mean(axis=1), u)
+    def centroid(t):
+        return ((t[:, 0] + t[:, 1]) + t[:, 2]) / 3.0
+
+    hit = strictly_inside(centroid(u), w) | strictly_inside(centroid(w), u)
     for i in range(3):
         hit |= strictly_inside(u[:, i], w) | strictly_inside(w[:, i], u)
         p, q = u[:, i], u[:, (i + 1) % 3]
@@ -127,10 +161,12 @@ def _pairs_intersect(t1: np.ndarray, t2: np.ndarray, shared_one: np.ndarray, opp
             for i in range(3):
                 h |= _segment_crosses_triangle(x[:, i], x[:, (i + 1) % 3], y[:, 0], y[:, 1], y[:, 2])
         # coplanar pairs: no edge can properly cross, test the overlap in the plane
-        n = triangle_cross(b)
+        n = _cross(b[:, 1] - b[:, 0], b[:, 2] - b[:, 0])
         scale = np.maximum(np.abs(a - b[:, :1]).max(axis=(1, 2)), np.abs(b - b[:, :1]).max(axis=(1, 2)))
-        dist = np.abs(np.einsum("npd,nd->np", a - b[:, :1], n))
-        coplanar = np.all(dist <= 1e-12 * np.linalg.norm(n, axis=1)[:, None] * scale[:, None], axis=1)
+        bound = 1e-12 * np.sqrt(_dot(n, n)) * scale
+        coplanar = np.ones(len(a), dtype=bool)
+        for k in range(3):
+            coplanar &= np.abs(_dot(a[:, k] - b[:, 0], n)) <= bound
         if coplanar.any():
             h[coplanar] |= _coplanar_overlap(a[coplanar], b[coplanar], n[coplanar])
         hit[disjoint] = h
@@ -152,12 +188,21 @@ def self_intersecting_faces(vertices: np.ndarray, faces: np.ndarray) -> np.ndarr
 
     Degenerate (zero-area) faces are neither tested nor flagged.
     """
-    v, f = as_mesh(vertices, faces)
+    v = np.ascontiguousarray(vertices, dtype=np.float64).reshape(-1, 3)
+    f = np.ascontiguousarray(faces, dtype=np.int64).reshape(-1, 3)
+    if len(f) and (f.min() < 0 or f.max() >= len(v)):
+        raise ValueError("face index out of range")
+    if NATIVE:
+        flags = np.zeros(len(f), dtype=np.uint8)
+        if _intersect_native.faces(v, f, flags):
+            raise RuntimeError("self-intersection test: too many candidate face pairs")
+        return flags.astype(bool)
     flagged = np.zeros(len(f), dtype=bool)
     if len(f) < 2:
         return flagged
     tri = v[f]
-    valid = np.nonzero(face_areas(v, f) > 0)[0]
+    n = _cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    valid = np.nonzero(_dot(n, n) > 0)[0]
     if len(valid) < 2:
         return flagged
     pairs = valid[_candidate_pairs(tri[valid])]

@@ -1,0 +1,452 @@
+/* Compiled fast path of geometry/intersections.py `self_intersecting_faces`: the same candidate grid decision
+ * (cell size, "coarser" / "finer" retries, failure) and the same pair predicate, with every floating-point
+ * operation in the reference's order (built with -ffp-contract=off, no -ffast-math), so both flag the same faces.
+ *
+ * faces(vertices (V,3) float64, faces (F,3) int64 (indices checked by the caller), flags (F,) uint8 out) -> int:
+ * 0 done, 1 the grid found no feasible cell size (the reference raises RuntimeError there).
+ *
+ * Candidate pairs: every pair of valid faces whose bounding boxes overlap (closed intervals); the grid groups
+ * faces by the cells their boxes cover (cells sorted lexicographically by (x, y, z)) and tests a pair only in the
+ * cell of the larger of the two boxes' lower corners, so each pair once.
+ */
+#define PY_SSIZE_T_CLEAN
+#include <Python.h>
+#include <math.h>
+#include <stdint.h>
+#include <stdlib.h>
+#include <string.h>
+
+#define MAX_CANDIDATE_PAIRS 30000000LL
+
+static int cmp_double(const void *a, const void *b) {
+    double x = *(const double *)a, y = *(const double *)b;
+    return (x > y) - (x < y);
+}
+
+static inline void sub3(const double *a, const double *b, double *r) {
+    r[0] = a[0] - b[0];
+    r[1] = a[1] - b[1];
+    r[2] = a[2] - b[2];
+}
+
+static inline void cross3(const double *u, const double *w, double *r) {
+    r[0] = u[1] * w[2] - u[2] * w[1];
+    r[1] = u[2] * w[0] - u[0] * w[2];
+    r[2] = u[0] * w[1] - u[1] * w[0];
+}
+
+static inline double dot3(const double *u, const double *w) { return (u[0] * w[0] + u[1] * w[1]) + u[2] * w[2]; }
+
+static inline double orient(const double *a, const double *b, const double *c, const double *d) {
+    double u[3], w[3], x[3], n[3];
+    sub3(b, a, u);
+    sub3(c, a, w);
+    sub3(d, a, x);
+    cross3(u, w, n);
+    return dot3(n, x);
+}
+
+static inline double cross2(const double *o, const double *a, const double *b) {
+    return (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0]);
+}
+
+static int strictly_inside(const double *p, const double t[3][2]) {
+    double d1 = cross2(t[0], t[1], p), d2 = cross2(t[1], t[2], p), d3 = cross2(t[2], t[0], p);
+    return (d1 > 0 && d2 > 0 && d3 > 0) || (d1 < 0 && d2 < 0 && d3 < 0);
+}
+
+static int coplanar_overlap(const double *a[3], const double *b[3], const double *n) {
+    static const int KEEP[3][2] = {{1, 2}, {0, 2}, {0, 1}};
+    int axis = 0;
+    double m = fabs(n[0]);
+    if (fabs(n[1]) > m) {
+        axis = 1;
+        m = fabs(n[1]);
+    }
+    if (fabs(n[2]) > m) axis = 2;
+    double u[3][2], w[3][2], cu[2], cw[2];
+    for (int i = 0; i < 3; i++)
+        for (int k = 0; k < 2; k++) {
+            u[i][k] = a[i][KEEP[axis][k]];
+            w[i][k] = b[i][KEEP[axis][k]];
+        }
+    for (int k = 0; k < 2; k++) {
+        cu[k] = ((u[0][k] + u[1][k]) + u[2][k]) / 3.0;
+        cw[k] = ((w[0][k] + w[1][k]) + w[2][k]) / 3.0;
+    }
+    if (strictly_inside(cu, w) || strictly_inside(cw, u)) return 1;
+    for (int i = 0; i < 3; i++) {
+        if (strictly_inside(u[i], w) || strictly_inside(w[i], u)) return 1;
+        const double *p = u[i], *q = u[(i + 1) % 3];
+        for (int j = 0; j < 3; j++) {
+            const double *r = w[j], *s = w[(j + 1) % 3];
+            if ((cross2(p, q, r) * cross2(p, q, s) < 0) && (cross2(r, s, p) * cross2(r, s, q) < 0)) return 1;
+        }
+    }
+    return 0;
+}
+
+/* Segment pq crosses triangle abc, given sp = orient(a, b, c, p) and sq = orient(a, b, c, q) (the reference's
+ * _segment_crosses_triangle; the other orientations are only needed when p and q lie on opposite sides). */
+static inline int seg_cross_given(double sp, double sq, const double *p, const double *q, const double *a,
+                                  const double *b, const double *c) {
+    if (!(sp * sq < 0)) return 0;
+    double s1 = orient(p, q, a, b), s2 = orient(p, q, b, c), s3 = orient(p, q, c, a);
+    return (s1 > 0 && s2 > 0 && s3 > 0) || (s1 < 0 && s2 < 0 && s3 < 0);
+}
+
+/* The reference's _pairs_intersect for one pair of faces fa < fb (global face indices) with normals na, nb, each
+ * (x1 - x0) x (x2 - x0). orient(x0, x1, x2, y) is computed as n_x . (y - x0): the same operations in the same
+ * order as the reference's. */
+static int pair_intersects(const double *v, const int64_t *fa, const int64_t *fb, const double *na,
+                           const double *nb) {
+    int shared_a[3], n_shared = 0, shared_b[3] = {0, 0, 0};
+    for (int i = 0; i < 3; i++) {
+        shared_a[i] = 0;
+        for (int j = 0; j < 3; j++)
+            if (fa[i] == fb[j]) {
+                shared_a[i] = 1;
+                shared_b[j] = 1;
+            }
+        n_shared += shared_a[i];
+    }
+    if (n_shared >= 2) return 0;
+    const double *a[3], *b[3];
+    for (int i = 0; i < 3; i++) {
+        a[i] = v + 3 * fa[i];
+        b[i] = v + 3 * fb[i];
+    }
+    double d[3], oa[3], ob[3];
+    for (int i = 0; i < 3; i++) {
+        sub3(a[i], b[0], d);
+        oa[i] = dot3(nb, d); /* orient(b0, b1, b2, a_i) */
+        sub3(b[i], a[0], d);
+        ob[i] = dot3(na, d); /* orient(a0, a1, a2, b_i) */
+    }
+    if (n_shared == 1) {
+        int pa[2], pb[2], ka = 0, kb = 0;
+        for (int i = 0; i < 3; i++) {
+            if (!shared_a[i]) pa[ka++] = i;
+            if (!shared_b[i]) pb[kb++] = i;
+        }
+        if (ka != 2 || kb != 2) return 0; /* a repeated index in one face: never a valid face */
+        return seg_cross_given(oa[pa[0]], oa[pa[1]], a[pa[0]], a[pa[1]], b[0], b[1], b[2]) ||
+               seg_cross_given(ob[pb[0]], ob[pb[1]], b[pb[0]], b[pb[1]], a[0], a[1], a[2]);
+    }
+    for (int i = 0; i < 3; i++)
+        if (seg_cross_given(oa[i], oa[(i + 1) % 3], a[i], a[(i + 1) % 3], b[0], b[1], b[2])) return 1;
+    for (int i = 0; i < 3; i++)
+        if (seg_cross_given(ob[i], ob[(i + 1) % 3], b[i], b[(i + 1) % 3], a[0], a[1], a[2])) return 1;
+    double scale_a = 0, scale_b = 0;
+    for (int i = 0; i < 3; i++)
+        for (int k = 0; k < 3; k++) {
+            double x = fabs(a[i][k] - b[0][k]), y = fabs(b[i][k] - b[0][k]);
+            if (x > scale_a) scale_a = x;
+            if (y > scale_b) scale_b = y;
+        }
+    double scale = scale_a > scale_b ? scale_a : scale_b;
+    double bound = 1e-12 * sqrt(dot3(nb, nb)) * scale;
+    for (int i = 0; i < 3; i++)
+        if (!(fabs(oa[i]) <= bound)) return 0;
+    return coplanar_overlap(a, b, nb);
+}
+
+static int get_buffer(PyObject *obj, Py_buffer *view, Py_ssize_t itemsize, Py_ssize_t count, const char *name) {
+    if (PyObject_GetBuffer(obj, view, PyBUF_C_CONTIGUOUS | PyBUF_WRITABLE) < 0 &&
+        (PyErr_Clear(), PyObject_GetBuffer(obj, view, PyBUF_C_CONTIGUOUS) < 0))
+        return -1;
+    if (view->itemsize != itemsize || view->len != itemsize * count) {
+        PyBuffer_Release(view);
+        PyErr_Format(PyExc_ValueError, "%s: wrong size or type", name);
+        return -1;
+    }
+    return 0;
+}
+
+/* LSD radix sort of m keys on their low `bits` bits (11-bit digits). */
+static int radix_sort(uint64_t *a, int64_t m, int bits) {
+    uint64_t *tmp = (uint64_t *)malloc(sizeof(uint64_t) * (size_t)(m > 0 ? m : 1));
+    if (!tmp) return -1;
+    int64_t count[2048];
+    for (int shift = 0; shift < bits; shift += 11) {
+        memset(count, 0, sizeof(count));
+        for (int64_t i = 0; i < m; i++) count[(a[i] >> shift) & 2047]++;
+        int64_t sum = 0;
+        for (int d = 0; d < 2048; d++) {
+            int64_t c = count[d];
+            count[d] = sum;
+            sum += c;
+        }
+        for (int64_t i = 0; i < m; i++) tmp[count[(a[i] >> shift) & 2047]++] = a[i];
+        memcpy(a, tmp, sizeof(uint64_t) * (size_t)m);
+    }
+    free(tmp);
+    return 0;
+}
+
+static int bit_length(uint64_t v) {
+    int b = 0;
+    while (v) {
+        b++;
+        v >>= 1;
+    }
+    return b;
+}
+
+/* The reference's _grid_pairs decision for cell size `cell`: 0 feasible, 1 "coarser", 2 "finer", -1 out of memory,
+ * 3 the cell keys do not fit 64 bits (a degenerate spread of sizes; the caller treats it as a failure).
+ * On success *keys holds the sorted entries (cell key << face_bits | face), *count their number, c0 (n,3) the
+ * lower cell of each box. */
+static int grid(const double *lo, const double *hi, int64_t n, double cell, const double *origin, int64_t *c0,
+                uint64_t **keys, int64_t *count, int *face_bits, int64_t *dims) {
+    double limit = 64.0 * (double)n + 1000000.0, total_cells = 0;
+    dims[0] = dims[1] = dims[2] = 1;
+    for (int64_t i = 0; i < n; i++) {
+        double span = 1;
+        for (int k = 0; k < 3; k++) {
+            double a = floor((lo[3 * i + k] - origin[k]) / cell), b = floor((hi[3 * i + k] - origin[k]) / cell);
+            span *= b - a + 1;
+        }
+        total_cells += span;
+        if (total_cells > limit) return 1;
+    }
+    for (int64_t i = 0; i < n; i++)
+        for (int k = 0; k < 3; k++) {
+            c0[3 * i + k] = (int64_t)floor((lo[3 * i + k] - origin[k]) / cell);
+            int64_t c1 = (int64_t)floor((hi[3 * i + k] - origin[k]) / cell);
+            if (c1 + 1 > dims[k]) dims[k] = c1 + 1;
+        }
+    int fb = bit_length((uint64_t)n);
+    int cb = bit_length((uint64_t)dims[0]) + bit_length((uint64_t)dims[1]) + bit_length((uint64_t)dims[2]);
+    if (fb + cb > 63) return 3;
+    int64_t m = (int64_t)total_cells, t = 0;
+    uint64_t *e = (uint64_t *)malloc(sizeof(uint64_t) * (size_t)(m > 0 ? m : 1));
+    if (!e) return -1;
+    for (int64_t i = 0; i < n; i++) {
+        int64_t c1[3];
+        for (int k = 0; k < 3; k++) c1[k] = (int64_t)floor((hi[3 * i + k] - origin[k]) / cell);
+        for (int64_t x = c0[3 * i]; x <= c1[0]; x++)
+            for (int64_t y = c0[3 * i + 1]; y <= c1[1]; y++)
+                for (int64_t z = c0[3 * i + 2]; z <= c1[2]; z++)
+                    e[t++] = ((((uint64_t)x * (uint64_t)dims[1] + (uint64_t)y) * (uint64_t)dims[2] + (uint64_t)z)
+                              << fb) | (uint64_t)i;
+    }
+    if (radix_sort(e, t, fb + cb) < 0) {
+        free(e);
+        return -1;
+    }
+    long long pairs = 0;
+    for (int64_t s = 0; s < t;) {
+        int64_t r = s + 1;
+        while (r < t && (e[r] >> fb) == (e[s] >> fb)) r++;
+        long long size = r - s;
+        pairs += size * (size - 1) / 2;
+        if (pairs > MAX_CANDIDATE_PAIRS) {
+            free(e);
+            return 2;
+        }
+        s = r;
+    }
+    *keys = e;
+    *count = t;
+    *face_bits = fb;
+    return 0;
+}
+
+static PyObject *faces_flags(PyObject *self, PyObject *args) {
+    PyObject *ov, *of, *oo;
+    if (!PyArg_ParseTuple(args, "OOO", &ov, &of, &oo)) return NULL;
+    Py_buffer bv, bf, bo;
+    if (PyObject_GetBuffer(ov, &bv, PyBUF_C_CONTIGUOUS) < 0) return NULL;
+    if (bv.itemsize != 8 || bv.len % 24) {
+        PyBuffer_Release(&bv);
+        PyErr_SetString(PyExc_ValueError, "vertices: (V,3) float64");
+        return NULL;
+    }
+    if (PyObject_GetBuffer(of, &bf, PyBUF_C_CONTIGUOUS) < 0) {
+        PyBuffer_Release(&bv);
+        return NULL;
+    }
+    if (bf.itemsize != 8 || bf.len % 24) {
+        PyBuffer_Release(&bv);
+        PyBuffer_Release(&bf);
+        PyErr_SetString(PyExc_ValueError, "faces: (F,3) int64");
+        return NULL;
+    }
+    int64_t nf = bf.len / 24;
+    if (get_buffer(oo, &bo, 1, nf, "flags") < 0) {
+        PyBuffer_Release(&bv);
+        PyBuffer_Release(&bf);
+        return NULL;
+    }
+    const double *v = (const double *)bv.buf;
+    const int64_t *f = (const int64_t *)bf.buf;
+    uint8_t *flags = (uint8_t *)bo.buf;
+    memset(flags, 0, (size_t)nf);
+    int status = 0;
+    int64_t *valid = NULL;
+    double *lo = NULL, *hi = NULL, *ext = NULL;
+    uint64_t *e = NULL, *lcell = NULL;
+    int64_t *c0 = NULL;
+    double *local = NULL, *normal = NULL;
+    Py_BEGIN_ALLOW_THREADS;
+    valid = (int64_t *)malloc(sizeof(int64_t) * (size_t)(nf > 0 ? nf : 1));
+    lo = (double *)malloc(sizeof(double) * 3 * (size_t)(nf > 0 ? nf : 1));
+    hi = (double *)malloc(sizeof(double) * 3 * (size_t)(nf > 0 ? nf : 1));
+    ext = (double *)malloc(sizeof(double) * (size_t)(nf > 0 ? nf : 1));
+    normal = (double *)malloc(sizeof(double) * 3 * (size_t)(nf > 0 ? nf : 1));
+    if (!valid || !lo || !hi || !ext || !normal) {
+        status = -1;
+        goto done;
+    }
+    int64_t n = 0;
+    for (int64_t i = 0; i < nf; i++) {
+        const double *p0 = v + 3 * f[3 * i], *p1 = v + 3 * f[3 * i + 1], *p2 = v + 3 * f[3 * i + 2];
+        double e1[3], e2[3], c[3];
+        sub3(p1, p0, e1);
+        sub3(p2, p0, e2);
+        cross3(e1, e2, c);
+        if (!(dot3(c, c) > 0)) continue;
+        valid[n] = i;
+        normal[3 * n] = c[0];
+        normal[3 * n + 1] = c[1];
+        normal[3 * n + 2] = c[2];
+        double x = 0;
+        for (int k = 0; k < 3; k++) {
+            double a = p0[k], b = p1[k], d = p2[k];
+            double mn = a, mx = a;
+            if (b < mn) mn = b;
+            if (d < mn) mn = d;
+            if (b > mx) mx = b;
+            if (d > mx) mx = d;
+            lo[3 * n + k] = mn;
+            hi[3 * n + k] = mx;
+            if (k == 0 || mx - mn > x) x = mx - mn;
+        }
+        ext[n] = x;
+        n++;
+    }
+    if (nf < 2 || n < 2) goto done;
+    /* cell = 2 median(extent); not > 0: max extent, or 1 */
+    double *sorted = (double *)malloc(sizeof(double) * (size_t)n);
+    if (!sorted) {
+        status = -1;
+        goto done;
+    }
+    memcpy(sorted, ext, sizeof(double) * (size_t)n);
+    qsort(sorted, (size_t)n, sizeof(double), cmp_double);
+    double median = (n % 2) ? sorted[n / 2] : (sorted[n / 2 - 1] + sorted[n / 2]) / 2.0;
+    double cell = 2.0 * median;
+    if (!(cell > 0)) {
+        cell = sorted[n - 1];
+        if (cell == 0) cell = 1.0;
+    }
+    free(sorted);
+    double origin[3];
+    for (int k = 0; k < 3; k++) {
+        origin[k] = lo[k];
+        for (int64_t i = 1; i < n; i++)
+            if (lo[3 * i + k] < origin[k]) origin[k] = lo[3 * i + k];
+    }
+    c0 = (int64_t *)malloc(sizeof(int64_t) * 3 * (size_t)n);
+    if (!c0) {
+        status = -1;
+        goto done;
+    }
+    int tried_coarser = 0, tried_finer = 0, fb = 0;
+    int64_t t = 0, dims[3];
+    for (;;) {
+        int r = grid(lo, hi, n, cell, origin, c0, &e, &t, &fb, dims);
+        if (r == 0) break;
+        if (r < 0) {
+            status = -1;
+            goto done;
+        }
+        if (r == 3) {
+            status = 1;
+            goto done;
+        }
+        if (r == 1) tried_coarser = 1;
+        if (r == 2) tried_finer = 1;
+        if (tried_coarser && tried_finer) {
+            status = 1;
+            goto done;
+        }
+        cell *= (r == 1) ? 2.0 : 0.5;
+    }
+    uint64_t mask = (((uint64_t)1) << fb) - 1, dims_y = (uint64_t)dims[1], dims_z = (uint64_t)dims[2];
+    /* per cell, its boxes' lower cells and bounds gathered contiguously (the pair loop is memory bound) */
+    int64_t most = 0;
+    for (int64_t s = 0; s < t;) {
+        int64_t r = s + 1;
+        while (r < t && (e[r] >> fb) == (e[s] >> fb)) r++;
+        if (r - s > most) most = r - s;
+        s = r;
+    }
+    local = (double *)malloc(sizeof(double) * 6 * (size_t)most);
+    lcell = (uint64_t *)malloc(sizeof(uint64_t) * 3 * (size_t)most);
+    if (!local || !lcell) {
+        status = -1;
+        goto done;
+    }
+    for (int64_t s = 0; s < t;) {
+        int64_t r = s + 1;
+        uint64_t key = e[s] >> fb;
+        while (r < t && (e[r] >> fb) == key) r++;
+        for (int64_t i = s; i < r; i++) {
+            int64_t p = (int64_t)(e[i] & mask), o = i - s;
+            for (int k = 0; k < 3; k++) {
+                local[6 * o + k] = lo[3 * p + k];
+                local[6 * o + 3 + k] = hi[3 * p + k];
+                lcell[3 * o + k] = (uint64_t)c0[3 * p + k];
+            }
+        }
+        for (int64_t i = s; i < r; i++) {
+            const double *bp = local + 6 * (i - s);
+            const uint64_t *cp = lcell + 3 * (i - s);
+            for (int64_t j = i + 1; j < r; j++) {
+                const double *bq = local + 6 * (j - s);
+                const uint64_t *cq = lcell + 3 * (j - s);
+                /* test the pair once: in the cell of the larger lower corner (floor is monotone) */
+                uint64_t mx = cp[0] > cq[0] ? cp[0] : cq[0], my = cp[1] > cq[1] ? cp[1] : cq[1];
+                uint64_t mz = cp[2] > cq[2] ? cp[2] : cq[2];
+                if (((mx * dims_y + my) * dims_z + mz) != key) continue;
+                if (!(bp[0] <= bq[3] && bq[0] <= bp[3] && bp[1] <= bq[4] && bq[1] <= bp[4] && bp[2] <= bq[5] &&
+                      bq[2] <= bp[5]))
+                    continue;
+                /* p < q: a cell's entries are sorted by face */
+                int64_t p = (int64_t)(e[i] & mask), q = (int64_t)(e[j] & mask), fa = valid[p], fz = valid[q];
+                if (pair_intersects(v, f + 3 * fa, f + 3 * fz, normal + 3 * p, normal + 3 * q)) {
+                    flags[fa] = 1;
+                    flags[fz] = 1;
+                }
+            }
+        }
+        s = r;
+    }
+done:
+    free(valid);
+    free(lo);
+    free(hi);
+    free(ext);
+    free(e);
+    free(c0);
+    free(local);
+    free(lcell);
+    free(normal);
+    Py_END_ALLOW_THREADS;
+    PyBuffer_Release(&bv);
+    PyBuffer_Release(&bf);
+    PyBuffer_Release(&bo);
+    if (status < 0) return PyErr_NoMemory();
+    return PyLong_FromLong(status);
+}
+
+static PyMethodDef methods[] = {
+    {"faces", faces_flags, METH_VARARGS, "Flags of self-intersecting faces (geometry.intersections)."},
+    {NULL, NULL, 0, NULL},
+};
+
+static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "_intersect_native", NULL, -1, methods};
+
+PyMODINIT_FUNC PyInit__intersect_native(void) { return PyModule_Create(&module); }
