@@ -6,7 +6,8 @@ Run from outside the repo root, one thread:
 
 Prints bytes, points kept, Chamfer distance (CD), edge Chamfer (ECD), edge F1 and normal consistency of the
 decoded mesh against the input (the bench's metrics, 100k samples), and whether the output is watertight and
-2-manifold (manifold3d), for each shape, size and mode ("off": no feature points, the start of before).
+2-manifold (manifold3d), for each shape, size and mode ("off": no feature points, the start of before) and each
+`--smoothing` (the decoder's Taubin steps; default: the encoder's).
 """
 
 from __future__ import annotations
@@ -71,6 +72,7 @@ def main() -> None:
     ap.add_argument("--sizes", nargs="+", type=int, default=[1024, 2048])
     ap.add_argument("--modes", nargs="+", default=["off", "on"], choices=["off", "on"])
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--smoothing", type=int, nargs="+", default=[None], help="Taubin steps (default: the encoder's)")
     args = ap.parse_args()
     torch.set_num_threads(1)
     opts = MetricOptions.for_samples(100_000)
@@ -79,13 +81,14 @@ def main() -> None:
         v, f = load(name)
         ref = prepare_reference(v, f, opts)
         for size in args.sizes:
-            for mode in args.modes:
+            for mode, smoothing in [(m, k) for m in args.modes for k in args.smoothing]:
                 features.MIN_CREASE_LENGTH = default_length if mode == "on" else math.inf
                 t = time.process_time()
-                r = encode(v, f, size=size, device="cpu", seed=args.seed, measure=False)
+                r = encode(v, f, size=size, device="cpu", seed=args.seed, measure=False, smoothing=smoothing)
                 met = evaluate(ref, r.vertices, r.faces, opts)
+                smooth = "" if smoothing is None else f" smoothing {smoothing}"
                 print(
-                    f"{name:14} {size:6} B {mode:3}: {len(r.data):6} B, {r.stats['points_kept']:5} points, "
+                    f"{name:14} {size:6} B {mode:3}{smooth}: {len(r.data):6} B, {r.stats['points_kept']:5} points, "
                     f"CD {met['chamfer']:.2e}, ECD {met['edge_chamfer']:.2e}, EF1 {met['edge_f1']:.3f}, "
                     f"NC {met['normal_consistency']:.4f}, manifold {watertight(r.vertices, r.faces)}, "
                     f"{time.process_time() - t:.0f} s CPU",

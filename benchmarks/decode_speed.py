@@ -9,7 +9,8 @@ bytes, not on how long the fit ran). `--no-encode` times only the files already 
 Per file, median of `--repeats` runs after one warm-up, with the clock of `--clock`:
 
 * the API stages of `decode_detailed`: unpack (range decoding, the octree and the s prediction), Delaunay,
-  marching tets, and their total (input-frame transform included);
+  marching tets, smoothing (its Taubin steps and self-intersection check; 0 for unsmoothed files), and their
+  total (input-frame transform included);
 * "s pred": the part of unpack spent in the s prediction (`predict.reconstruct`: neighbour search, weights and
   the sequential pass), timed on its own;
 * "CLI": `tetweave decode FILE -o OUT.ply` as a fresh process, from process start to the file written (wall
@@ -17,8 +18,9 @@ Per file, median of `--repeats` runs after one warm-up, with the clock of `--clo
 * ratios of unpack, total and CLI to the Delaunay time of the same file.
 
 `--native both` times every file twice in turn, with the compiled fast paths (formats/_native.c,
-geometry/_mt_native.c) and with the numpy/Python reference code alone (`TETWEAVE_NATIVE=0` for the CLI): the
-before/after comparison in one run. `off` and `on` time one of them (default: `on`, whatever is built).
+geometry/_mt_native.c, geometry/_intersect_native.c) and with the numpy/Python reference code alone
+(`TETWEAVE_NATIVE=0` for the CLI): the before/after comparison in one run. `off` and `on` time one of them
+(default: `on`, whatever is built).
 
     python -m tetweave_codec.benchmarks.decode_speed --threads 1
     python -m tetweave_codec.benchmarks.decode_speed --sizes 40k --meshes fandisk,spot --repeats 9 --no-encode
@@ -75,10 +77,11 @@ def ensure_file(mesh: Path, size: str, cache: Path, encode: bool) -> Path | None
 def set_native(on: bool) -> None:
     """Switch the compiled fast paths of the decoder on (where built) or off (the numpy/Python reference)."""
     from tetweave_codec.formats import predict
-    from tetweave_codec.geometry import marching_tets
+    from tetweave_codec.geometry import intersections, marching_tets
 
     predict.NATIVE = on and predict._native is not None
     marching_tets.NATIVE = on and marching_tets._mt_native is not None
+    intersections.NATIVE = on and intersections._intersect_native is not None
 
 
 def time_api(data: bytes, repeats: int, clock: str) -> dict:
@@ -154,7 +157,8 @@ def main(argv: list[str] | None = None) -> int:
     print(f"# decode speed ({args.clock} clock for the API stages, wall for the CLI): real v2 files from {cache}, "
           f"median of {args.repeats} (CLI {args.cli_repeats})")  # fmt: skip
     header = ["file", "bytes", "points", "faces", "code", "unpack ms", "s pred ms", "Delaunay ms", "marching tets ms",
-              "total ms", "unpack / Delaunay", "total / Delaunay", "CLI ms", "CLI / Delaunay"]  # fmt: skip
+              "smoothing ms", "total ms", "unpack / Delaunay", "total / Delaunay", "CLI ms",
+              "CLI / Delaunay"]  # fmt: skip
     print("| " + " | ".join(header) + " |")
     print("|---|" + "|".join("---:" for _ in header[1:]) + "|")
     for label, _ in sorted(set(args.sizes), key=lambda item: item[1]):
@@ -169,10 +173,14 @@ def main(argv: list[str] | None = None) -> int:
                 dl = t["delaunay"]
                 cli = time_cli(path, args.cli_repeats, native) if args.cli_repeats else float("nan")
                 s_pred = f"{1e3 * t['s_pred']:.1f}" if "s_pred" in t else "-"
-                ms = {k: f"{1e3 * t[k]:.1f}" for k in ("unpack", "delaunay", "marching_tets", "total")}
+                ms = {
+                    k: f"{1e3 * t.get(k, 0.0):.1f}"
+                    for k in ("unpack", "delaunay", "marching_tets", "smoothing", "total")
+                }
                 row = [path.stem, f"{len(data):,}", f"{t['points']:,}", f"{t['faces']:,}",
                        "compiled" if native else "reference", ms["unpack"], s_pred, ms["delaunay"],
-                       ms["marching_tets"], ms["total"], f"{t['unpack'] / dl:.2f}", f"{t['total'] / dl:.2f}",
+                       ms["marching_tets"], ms["smoothing"], ms["total"], f"{t['unpack'] / dl:.2f}",
+                       f"{t['total'] / dl:.2f}",
                        f"{1e3 * cli:.0f}", f"{cli / dl:.1f}"]  # fmt: skip
                 print("| " + " | ".join(row) + " |", flush=True)
     return 0

@@ -20,7 +20,8 @@ section sizes and recomputes the CRC so that the mutation reaches the parsers be
 
 Every case decodes in a worker process (memory capped at ``--memory-gb``) with a time limit, through
 `decode_detailed` with the file's own backend flag; a decoded mesh must pass `marching_tets.check_manifold`
-(closed) and manifold3d, and a smoothed one must have no self-intersecting faces. Outcomes: ``rejected``
+(closed) and manifold3d, and a smoothed one must have no self-intersecting faces (unless the decoder kept the
+unsmoothed extraction). Outcomes: ``rejected``
 (ContainerError), ``closed`` (a non-empty closed 2-manifold), ``empty`` (no surface: one sign only, or points
 spanning no volume), and the failures ``non_manifold``,
 ``error`` (any other exception, TopologyError included), ``timeout`` and ``crash`` (the worker died).
@@ -367,13 +368,19 @@ def classify_result(result) -> tuple[str, str]:
     if status != manifold3d.Error.NoError:
         return "non_manifold", f"manifold3d: {status.name}"
     if result.container.smoothing:  # smoothing is the one decoder step that may move a face through another
+        from tetweave_codec.decoder import mesh_from_points
         from tetweave_codec.geometry.intersections import self_intersecting_faces
 
+        # the decoder's own normalized-frame mesh (the transform back may round vertices together)
+        c = result.container
+        nv, nf = mesh_from_points(c.points, c.s, c.c, c.sh_degree, result.backend, c.smoothing)
         try:
-            crossing = int(self_intersecting_faces(local, f).sum())
+            crossing = int(self_intersecting_faces(nv, nf).sum())
         except RuntimeError:  # the decoder falls back to the unsmoothed surface in this case too
             crossing = 0
-        if crossing:
+        # smoothing must add no crossing: either none is left, or the decoder kept the unsmoothed extraction
+        # (whose crossings, possible only with saturated SH terms that put vertices on points, are not its own)
+        if crossing and result.restored != len(nv):
             return "non_manifold", f"{crossing} self-intersecting faces after smoothing"
     return "closed", f"{result.backend} {result.container.num_points} points {len(f)} faces"
 

@@ -139,7 +139,7 @@ def _progress_lines(every_s: float = PROGRESS_LINE_SECONDS):
     type=click.IntRange(0, 3),
     default=None,
     help="v2: Taubin smoothing steps the decoder applies to the surface (the fit optimizes the smoothed surface; "
-    "0 = none).  [default: 1; 0 with --format-version 1]",
+    "0 = none).  [default: 1; 0 for inputs with sharp creases (CAD) and with --format-version 1]",
 )
 @device_option
 @click.option("--seed", type=int, default=0, help="Seed of every random choice: same seed, same bytes.")

@@ -250,7 +250,8 @@ def test_decode_restores_the_input_frame_and_is_deterministic():
 
 def test_decode_detailed_reports_stages():
     res = decode_detailed(pack(sphere_file(n=500)))
-    assert set(res.seconds) == {"unpack", "delaunay", "marching_tets"}
+    assert set(res.seconds) == {"unpack", "delaunay", "marching_tets", "smoothing"}
+    assert res.seconds["smoothing"] < 0.01 and res.restored == 0  # a version-1 file is never smoothed
     assert res.backend in available_backends() and res.num_tets > 0
     assert res.container.num_points == 500
 

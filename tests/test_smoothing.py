@@ -150,3 +150,13 @@ def test_encoder_refuses_bad_smoothing():
         encode(m.vertices, m.faces, points=128, smoothing=4)
     with pytest.raises(InputError, match="version 2"):
         encode(m.vertices, m.faces, points=128, smoothing=1, container_version=1)
+
+
+def test_default_smoothing_is_off_for_cad_parts_only():
+    from tetweave_codec.encoder import default_smoothing
+    from tetweave_codec.fit.config import DEFAULT_SMOOTHING
+
+    cube = manifold3d.Manifold.cube([2, 1, 1], True).to_mesh()
+    assert default_smoothing(np.asarray(cube.vert_properties)[:, :3] * 50, np.asarray(cube.tri_verts)) == 0
+    ball = trimesh.creation.icosphere(3)
+    assert default_smoothing(ball.vertices * 1e-3, ball.faces) == DEFAULT_SMOOTHING == 1

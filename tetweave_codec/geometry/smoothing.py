@@ -21,7 +21,6 @@ decoded mesh free of self-intersections. Connectivity never changes: a closed 2-
 
 from __future__ import annotations
 
-import os
 from typing import Any
 
 import numpy as np
@@ -30,8 +29,6 @@ from tetweave_codec.geometry.intersections import self_intersecting_faces
 
 TAUBIN_LAMBDA = 0.5
 TAUBIN_MU = -0.53
-if os.environ.get("TETWEAVE_TAUBIN"):  # EXPERIMENT: remove
-    TAUBIN_LAMBDA, TAUBIN_MU = (float(x) for x in os.environ["TETWEAVE_TAUBIN"].split(","))
 MAX_STEPS = 3  # the header's two bits
 # Self-intersection checks before the decoder gives up on smoothing altogether (the unsmoothed marching-tets
 # surface never crosses itself).
