@@ -53,15 +53,18 @@ def mesh_edges(faces: Any, num_vertices: int) -> Any:
     return np.stack([key // n, key % n], 1)
 
 
-def taubin(vertices: Any, faces: Any, steps: int, lam: float = TAUBIN_LAMBDA, mu: float = TAUBIN_MU) -> Any:
+def taubin(
+    vertices: Any, faces: Any, steps: int, lam: float = TAUBIN_LAMBDA, mu: float = TAUBIN_MU, edges: Any = None
+) -> Any:
     """`steps` Taubin steps of vertices (V,3) over faces (F,3) (numpy float64, or torch: differentiable).
 
+    edges: `mesh_edges(faces, V)` when the caller has it (the fit reuses it while the topology stays).
     Returns new vertices (V,3); the input is not modified. steps 0 returns the input itself.
     """
     n = len(vertices)
     if steps <= 0 or n == 0 or len(faces) == 0:
         return vertices
-    e = mesh_edges(faces, n)
+    e = mesh_edges(faces, n) if edges is None else edges
     if _is_torch(vertices):
         import torch
 
