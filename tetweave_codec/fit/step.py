@@ -21,7 +21,7 @@ from tetweave_codec.fit.surface_loss import SurfaceTarget
 from tetweave_codec.fit.targets import Targets
 from tetweave_codec.geometry.delaunay import tetrahedralize
 from tetweave_codec.geometry.marching_tets import Topology, marching_tets, marching_tets_topology
-from tetweave_codec.geometry.smoothing import mesh_edges, taubin
+from tetweave_codec.geometry.smoothing import TaubinOperator, taubin
 from tetweave_codec.render import render_maps
 
 ProgressFn = Callable[[str, int, int, dict], None]
@@ -122,18 +122,19 @@ def extract(points: Tensor, s: Tensor, c: Tensor, grid: Grid, cache: TopologyCac
         if cache.tets is not grid.tets or cache.inside is None or not torch.equal(cache.inside, inside):
             cache.tets, cache.inside = grid.tets, inside
             cache.topology = marching_tets_topology(grid.tets, inside, grid.hull)
-            cache.edges = None
+            cache.smoother = None
     mt = marching_tets(points, grid.tets, s, c, hull_faces=grid.hull, topology=cache.topology)
-    if smoothing > 0 and cache.edges is None:
-        cache.edges = mesh_edges(mt.faces, mt.vertices.shape[0])
-    return _smoothed(mt, smoothing, cache.edges)
+    if smoothing <= 0:
+        return mt
+    if cache.smoother is None or cache.smoother.steps != smoothing:
+        cache.smoother = TaubinOperator(mt.faces, mt.vertices.shape[0], smoothing)
+    return mt._replace(vertices=cache.smoother(mt.vertices))
 
 
-def _smoothed(mt, steps: int, edges: Tensor | None = None):
+def _smoothed(mt, steps: int):
     """mt with its vertices after `steps` Taubin steps (the decoder's smoothing; its restoring of crossing faces
-    is left to the decoder: it touches a handful of vertices and has no gradient). edges: `mesh_edges` of
-    mt.faces when known."""
-    return mt if steps <= 0 else mt._replace(vertices=taubin(mt.vertices, mt.faces, steps, edges=edges))
+    is left to the decoder: it touches a handful of vertices and has no gradient)."""
+    return mt if steps <= 0 else mt._replace(vertices=taubin(mt.vertices, mt.faces, steps))
 
 
 @dataclass
@@ -143,7 +144,7 @@ class TopologyCache:
     tets: Tensor | None = None
     inside: Tensor | None = None
     topology: Topology | None = None
-    edges: Tensor | None = None  # mesh_edges of the topology's faces (smoothing), computed on first use
+    smoother: TaubinOperator | None = None  # the smoothing of the topology's faces, built on first use
 
 
 def regularized_loss(
