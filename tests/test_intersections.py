@@ -105,3 +105,27 @@ def test_a_work_bound_that_cannot_be_met_raises(path, monkeypatch):
     f = np.arange(300).reshape(100, 3)
     with pytest.raises(RuntimeError):
         I.self_intersecting_faces(v, f)
+
+
+@needs_native
+@given(seed=st.integers(0, 2**32 - 1), n_faces=st.integers(2, 120), kind=st.sampled_from(["spread", "flat"]))
+@settings(max_examples=60, deadline=None)
+def test_only_restricts_to_pairs_with_a_marked_face(seed, n_faces, kind):
+    rng = np.random.default_rng(seed)
+    v, f = soup(rng, n_faces, 40, kind)
+    only = rng.random(len(f)) < 0.3
+    saved = I.NATIVE
+    try:
+        out = {}
+        for flag in (True, False):
+            I.NATIVE = flag
+            out[flag] = I.self_intersecting_faces(v, f, only=only)
+        full = I.self_intersecting_faces(v, f)
+    finally:
+        I.NATIVE = saved
+    np.testing.assert_array_equal(out[True], out[False])
+    # a marked face is flagged exactly when the full test flags it through a pair with a marked face: at least,
+    # every flagged face is flagged by the full test, and every marked face the full test flags is flagged
+    assert not (out[True] & ~full).any()
+    pairs_marked = full & only
+    assert not (pairs_marked & ~out[True]).any()

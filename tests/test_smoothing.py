@@ -43,6 +43,10 @@ def test_edges_are_each_undirected_edge_both_ways():
     e = mesh_edges(f, 4)
     assert e.tolist() == [[0, 1], [0, 2], [0, 3], [1, 0], [1, 2], [2, 0], [2, 1], [2, 3], [3, 0], [3, 2]]
     np.testing.assert_array_equal(mesh_edges(torch.as_tensor(f), 4).numpy(), e)
+    closed = trimesh.creation.icosphere(2)
+    np.testing.assert_array_equal(
+        mesh_edges(closed.faces, len(closed.vertices), closed=True), mesh_edges(closed.faces, len(closed.vertices))
+    )
 
 
 def test_torch_matches_numpy_and_has_gradients():
@@ -109,7 +113,7 @@ def test_crossing_faces_are_restored():
 
 
 def test_restore_gives_up_when_the_check_cannot_bound_its_work(monkeypatch):
-    def too_many(*args):
+    def too_many(*args, **kwargs):
         raise RuntimeError("self-intersection test: too many candidate face pairs")
 
     monkeypatch.setattr(smoothing, "self_intersecting_faces", too_many)

@@ -22,7 +22,7 @@ import numpy as np
 from tetweave_codec.geometry.delaunay import available_backends, tetrahedralize
 from tetweave_codec.geometry.marching_tets import marching_tets_numpy
 from tetweave_codec.geometry.sh import check_degree, num_coeffs
-from tetweave_codec.geometry.smoothing import restore_crossings, taubin
+from tetweave_codec.geometry.smoothing import mesh_edges, restore_crossings, taubin
 
 
 class DecodeWarning(UserWarning):
@@ -97,7 +97,10 @@ def _extract(points, s, c, sh_degree, backend, seconds, clock, smoothing=0):
     t2 = clock()
     vertices, restored = mt.vertices, 0
     if smoothing:
-        vertices, restored = restore_crossings(taubin(mt.vertices, mt.faces, smoothing), mt.vertices, mt.faces)
+        # marching tets' output is a checked closed 2-manifold: its half-edges are the edges, once each way
+        edges = mesh_edges(mt.faces, len(mt.vertices), closed=True)
+        smoothed = taubin(mt.vertices, mt.faces, smoothing, edges=edges)
+        vertices, restored = restore_crossings(smoothed, mt.vertices, mt.faces)
     seconds["delaunay"] = t1 - t0
     seconds["marching_tets"] = t2 - t1
     seconds["smoothing"] = clock() - t2

@@ -2,8 +2,9 @@
  * (cell size, "coarser" / "finer" retries, failure) and the same pair predicate, with every floating-point
  * operation in the reference's order (built with -ffp-contract=off, no -ffast-math), so both flag the same faces.
  *
- * faces(vertices (V,3) float64, faces (F,3) int64 (indices checked by the caller), flags (F,) uint8 out) -> int:
- * 0 done, 1 the grid found no feasible cell size (the reference raises RuntimeError there).
+ * faces(vertices (V,3) float64, faces (F,3) int64 (indices checked by the caller), flags (F,) uint8 out,
+ * only (F,) uint8: test only pairs with a face marked here) -> int: 0 done, 1 the grid found no feasible cell
+ * size (the reference raises RuntimeError there).
  *
  * Candidate pairs: every pair of valid faces whose bounding boxes overlap (closed intervals); the grid groups
  * faces by the cells their boxes cover (cells sorted lexicographically by (x, y, z)) and tests a pair only in the
@@ -254,9 +255,9 @@ static int grid(const double *lo, const double *hi, int64_t n, double cell, cons
 }
 
 static PyObject *faces_flags(PyObject *self, PyObject *args) {
-    PyObject *ov, *of, *oo;
-    if (!PyArg_ParseTuple(args, "OOO", &ov, &of, &oo)) return NULL;
-    Py_buffer bv, bf, bo;
+    PyObject *ov, *of, *oo, *om;
+    if (!PyArg_ParseTuple(args, "OOOO", &ov, &of, &oo, &om)) return NULL;
+    Py_buffer bv, bf, bo, bm;
     if (PyObject_GetBuffer(ov, &bv, PyBUF_C_CONTIGUOUS) < 0) return NULL;
     if (bv.itemsize != 8 || bv.len % 24) {
         PyBuffer_Release(&bv);
@@ -279,6 +280,13 @@ static PyObject *faces_flags(PyObject *self, PyObject *args) {
         PyBuffer_Release(&bf);
         return NULL;
     }
+    if (get_buffer(om, &bm, 1, nf, "only") < 0) {
+        PyBuffer_Release(&bv);
+        PyBuffer_Release(&bf);
+        PyBuffer_Release(&bo);
+        return NULL;
+    }
+    const uint8_t *only = (const uint8_t *)bm.buf;
     const double *v = (const double *)bv.buf;
     const int64_t *f = (const int64_t *)bf.buf;
     uint8_t *flags = (uint8_t *)bo.buf;
@@ -393,6 +401,12 @@ static PyObject *faces_flags(PyObject *self, PyObject *args) {
         int64_t r = s + 1;
         uint64_t key = e[s] >> fb;
         while (r < t && (e[r] >> fb) == key) r++;
+        int any = 0; /* a cell without a face of interest has no pair to test */
+        for (int64_t i = s; i < r && !any; i++) any = only[valid[(int64_t)(e[i] & mask)]];
+        if (!any) {
+            s = r;
+            continue;
+        }
         for (int64_t i = s; i < r; i++) {
             int64_t p = (int64_t)(e[i] & mask), o = i - s;
             for (int k = 0; k < 3; k++) {
@@ -416,6 +430,7 @@ static PyObject *faces_flags(PyObject *self, PyObject *args) {
                     continue;
                 /* p < q: a cell's entries are sorted by face */
                 int64_t p = (int64_t)(e[i] & mask), q = (int64_t)(e[j] & mask), fa = valid[p], fz = valid[q];
+                if (!only[fa] && !only[fz]) continue;
                 if (pair_intersects(v, f + 3 * fa, f + 3 * fz, normal + 3 * p, normal + 3 * q)) {
                     flags[fa] = 1;
                     flags[fz] = 1;
@@ -438,6 +453,7 @@ done:
     PyBuffer_Release(&bv);
     PyBuffer_Release(&bf);
     PyBuffer_Release(&bo);
+    PyBuffer_Release(&bm);
     if (status < 0) return PyErr_NoMemory();
     return PyLong_FromLong(status);
 }

@@ -183,18 +183,23 @@ def _pairs_intersect(t1: np.ndarray, t2: np.ndarray, shared_one: np.ndarray, opp
     return hit
 
 
-def self_intersecting_faces(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+def self_intersecting_faces(vertices: np.ndarray, faces: np.ndarray, only: np.ndarray | None = None) -> np.ndarray:
     """Boolean mask (F,) of faces that properly intersect another face (see the module docstring).
 
-    Degenerate (zero-area) faces are neither tested nor flagged.
+    Degenerate (zero-area) faces are neither tested nor flagged. only: (F,) bool, test only the pairs with at
+    least one face marked (the decoder's later rounds, where every other pair is known not to cross); the
+    candidate grid and its work bound are those of the whole mesh either way.
     """
     v = np.ascontiguousarray(vertices, dtype=np.float64).reshape(-1, 3)
     f = np.ascontiguousarray(faces, dtype=np.int64).reshape(-1, 3)
     if len(f) and (f.min() < 0 or f.max() >= len(v)):
         raise ValueError("face index out of range")
+    mark = np.ones(len(f), dtype=bool) if only is None else np.asarray(only, dtype=bool).reshape(-1)
+    if mark.shape != (len(f),):
+        raise ValueError("only must be one flag per face")
     if NATIVE:
         flags = np.zeros(len(f), dtype=np.uint8)
-        if _intersect_native.faces(v, f, flags):
+        if _intersect_native.faces(v, f, flags, mark.astype(np.uint8)):
             raise RuntimeError("self-intersection test: too many candidate face pairs")
         return flags.astype(bool)
     flagged = np.zeros(len(f), dtype=bool)
@@ -206,6 +211,7 @@ def self_intersecting_faces(vertices: np.ndarray, faces: np.ndarray) -> np.ndarr
     if len(valid) < 2:
         return flagged
     pairs = valid[_candidate_pairs(tri[valid])]
+    pairs = pairs[mark[pairs[:, 0]] | mark[pairs[:, 1]]]
     for s in range(0, len(pairs), _PAIR_CHUNK):
         chunk = pairs[s : s + _PAIR_CHUNK]
         fa, fb = f[chunk[:, 0]], f[chunk[:, 1]]

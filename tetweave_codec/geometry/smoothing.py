@@ -35,9 +35,11 @@ MAX_STEPS = 3  # the header's two bits
 MAX_CHECKS = 5
 
 
-def mesh_edges(faces: Any, num_vertices: int) -> Any:
+def mesh_edges(faces: Any, num_vertices: int, closed: bool = False) -> Any:
     """Undirected edges (E,2) of a triangle mesh, each once, both directions listed: (a, b) and (b, a), sorted by
-    (first, second). faces (F,3) int64 numpy or torch."""
+    (first, second). faces (F,3) int64 numpy or torch. closed: the caller guarantees a closed, consistently
+    oriented 2-manifold (the decoder's checked output), whose half-edges already list every edge once each way:
+    the same result from half the keys."""
     n = int(num_vertices)
     if _is_torch(faces):
         import torch
@@ -48,6 +50,9 @@ def mesh_edges(faces: Any, num_vertices: int) -> Any:
         return torch.stack([key // n, key % n], 1)
     faces = np.asarray(faces, dtype=np.int64)
     e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    if closed:
+        key = np.sort(e[:, 0] * n + e[:, 1])
+        return np.stack([key // n, key % n], 1)
     e = np.concatenate([e, e[:, ::-1]])
     key = np.sort(e[:, 0] * n + e[:, 1])  # np.unique hashes (numpy 2.4): sorting is several times faster
     key = key[np.concatenate([[True], key[1:] != key[:-1]])] if len(key) else key
@@ -178,15 +183,24 @@ def restore_crossings(smoothed: np.ndarray, original: np.ndarray, faces: np.ndar
     faces = np.asarray(faces, dtype=np.int64)
     restored = np.zeros(len(v), dtype=bool)
     try:
+        changed = None  # the first check tests every pair
         for check in range(MAX_CHECKS):
-            bad = self_intersecting_faces(v, faces)
+            # later checks test only pairs with a face whose vertices just went back: every other pair was
+            # tested at these positions by an earlier check and found not to cross (else both faces would have
+            # gone back), so the answer is the same as a check of every pair
+            bad = self_intersecting_faces(v, faces, only=changed)
             if not bad.any():
                 return v, int(restored.sum())
             if check == MAX_CHECKS - 1:
                 break
-            idx = np.unique(faces[bad])
-            v[idx] = original[idx]
-            restored[idx] = True
+            moved = np.zeros(len(v), dtype=bool)
+            moved[faces[bad].reshape(-1)] = True
+            moved &= ~restored
+            if not moved.any():  # the crossing faces are unsmoothed already: more checks would find them again
+                break
+            v[moved] = original[moved]
+            restored |= moved
+            changed = moved[faces].any(axis=1)
     except RuntimeError:  # the check cannot bound its work on this mesh (a hostile file): no smoothing
         pass
     return np.array(original, dtype=np.float64), len(v)
