@@ -23,6 +23,18 @@ def test_seed_files_are_valid_and_cover_both_backends(small_seeds):
     assert set(outcomes) <= {"closed", "empty"} and outcomes.count("closed") >= 15
     assert {fuzz._backend_flag(data) for _, data in small_seeds} == {"tetgen", "qhull"}
     assert {data[11] for _, data in small_seeds} == {255, 0, 1, 2, 3}  # SH degrees -1..3 (int8 byte)
+    assert {(data[10] >> 3) & 3 for _, data in small_seeds} == {0, 1, 2, 3}  # smoothing steps (flags bits 3-4)
+
+
+def test_a_smoothed_mesh_that_crosses_itself_is_a_finding(monkeypatch, small_seeds):
+    """The campaign's self-intersection check can fail: a decoder whose smoothing skipped its restore step and
+    returned crossing faces is reported."""
+    from tetweave_codec.geometry import intersections
+
+    smoothed = next(data for _, data in small_seeds if (data[10] >> 3) & 3 and fuzz.classify(data)[0] == "closed")
+    monkeypatch.setattr(intersections, "self_intersecting_faces", lambda v, f, only=None: np.ones(len(f), bool))
+    outcome, detail = fuzz.classify(smoothed)
+    assert outcome == "non_manifold" and "self-intersecting" in detail
 
 
 def test_mutations_are_reproducible_and_change_the_file(small_seeds):
