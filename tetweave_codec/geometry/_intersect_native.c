@@ -96,11 +96,12 @@ static inline int seg_cross_given(double sp, double sq, const double *p, const d
     return (s1 > 0 && s2 > 0 && s3 > 0) || (s1 < 0 && s2 < 0 && s3 < 0);
 }
 
-/* The reference's _pairs_intersect for one pair of faces fa < fb (global face indices) with normals na, nb, each
+/* The reference's _pairs_intersect for one pair of faces fa < fb (their vertex indices; ta, tb their corners, 9
+ * coordinates each) with normals na, nb, each
  * (x1 - x0) x (x2 - x0). orient(x0, x1, x2, y) is computed as n_x . (y - x0): the same operations in the same
  * order as the reference's. */
-static int pair_intersects(const double *v, const int64_t *fa, const int64_t *fb, const double *na,
-                           const double *nb) {
+static int pair_intersects(const double *ta, const double *tb, const int64_t *fa, const int64_t *fb,
+                           const double *na, const double *nb) {
     int shared_a[3], n_shared = 0, shared_b[3] = {0, 0, 0};
     for (int i = 0; i < 3; i++) {
         shared_a[i] = 0;
@@ -114,8 +115,8 @@ static int pair_intersects(const double *v, const int64_t *fa, const int64_t *fb
     if (n_shared >= 2) return 0;
     const double *a[3], *b[3];
     for (int i = 0; i < 3; i++) {
-        a[i] = v + 3 * fa[i];
-        b[i] = v + 3 * fb[i];
+        a[i] = ta + 3 * i;
+        b[i] = tb + 3 * i;
     }
     double d[3], oa[3], ob[3];
     for (int i = 0; i < 3; i++) {
@@ -295,7 +296,7 @@ static PyObject *faces_flags(PyObject *self, PyObject *args) {
     int64_t *valid = NULL;
     double *lo = NULL, *hi = NULL, *ext = NULL;
     uint64_t *e = NULL, *lcell = NULL;
-    int64_t *c0 = NULL;
+    int64_t *c0 = NULL, *lids = NULL;
     double *local = NULL, *normal = NULL;
     Py_BEGIN_ALLOW_THREADS;
     valid = (int64_t *)malloc(sizeof(int64_t) * (size_t)(nf > 0 ? nf : 1));
@@ -391,9 +392,10 @@ static PyObject *faces_flags(PyObject *self, PyObject *args) {
         if (r - s > most) most = r - s;
         s = r;
     }
-    local = (double *)malloc(sizeof(double) * 6 * (size_t)most);
+    local = (double *)malloc(sizeof(double) * 18 * (size_t)most); /* box 6, corners 9, normal 3 */
     lcell = (uint64_t *)malloc(sizeof(uint64_t) * 3 * (size_t)most);
-    if (!local || !lcell) {
+    lids = (int64_t *)malloc(sizeof(int64_t) * 4 * (size_t)most); /* face, its 3 vertex indices */
+    if (!local || !lcell || !lids) {
         status = -1;
         goto done;
     }
@@ -408,18 +410,24 @@ static PyObject *faces_flags(PyObject *self, PyObject *args) {
             continue;
         }
         for (int64_t i = s; i < r; i++) {
-            int64_t p = (int64_t)(e[i] & mask), o = i - s;
+            int64_t p = (int64_t)(e[i] & mask), o = i - s, face = valid[p];
+            double *box = local + 18 * o;
+            lids[4 * o] = face;
             for (int k = 0; k < 3; k++) {
-                local[6 * o + k] = lo[3 * p + k];
-                local[6 * o + 3 + k] = hi[3 * p + k];
+                box[k] = lo[3 * p + k];
+                box[3 + k] = hi[3 * p + k];
+                box[15 + k] = normal[3 * p + k];
                 lcell[3 * o + k] = (uint64_t)c0[3 * p + k];
+                lids[4 * o + 1 + k] = f[3 * face + k];
+                for (int c = 0; c < 3; c++) box[6 + 3 * k + c] = v[3 * f[3 * face + k] + c];
             }
         }
         for (int64_t i = s; i < r; i++) {
-            const double *bp = local + 6 * (i - s);
+            const double *bp = local + 18 * (i - s);
             const uint64_t *cp = lcell + 3 * (i - s);
+            const int64_t *ip = lids + 4 * (i - s);
             for (int64_t j = i + 1; j < r; j++) {
-                const double *bq = local + 6 * (j - s);
+                const double *bq = local + 18 * (j - s);
                 const uint64_t *cq = lcell + 3 * (j - s);
                 /* test the pair once: in the cell of the larger lower corner (floor is monotone) */
                 uint64_t mx = cp[0] > cq[0] ? cp[0] : cq[0], my = cp[1] > cq[1] ? cp[1] : cq[1];
@@ -428,10 +436,11 @@ static PyObject *faces_flags(PyObject *self, PyObject *args) {
                 if (!(bp[0] <= bq[3] && bq[0] <= bp[3] && bp[1] <= bq[4] && bq[1] <= bp[4] && bp[2] <= bq[5] &&
                       bq[2] <= bp[5]))
                     continue;
-                /* p < q: a cell's entries are sorted by face */
-                int64_t p = (int64_t)(e[i] & mask), q = (int64_t)(e[j] & mask), fa = valid[p], fz = valid[q];
+                /* a cell's entries are sorted by face: ip's face is the lower one */
+                const int64_t *iq = lids + 4 * (j - s);
+                int64_t fa = ip[0], fz = iq[0];
                 if (!only[fa] && !only[fz]) continue;
-                if (pair_intersects(v, f + 3 * fa, f + 3 * fz, normal + 3 * p, normal + 3 * q)) {
+                if (pair_intersects(bp + 6, bq + 6, ip + 1, iq + 1, bp + 15, bq + 15)) {
                     flags[fa] = 1;
                     flags[fz] = 1;
                 }
@@ -448,6 +457,7 @@ done:
     free(c0);
     free(local);
     free(lcell);
+    free(lids);
     free(normal);
     Py_END_ALLOW_THREADS;
     PyBuffer_Release(&bv);
