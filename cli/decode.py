@@ -132,5 +132,14 @@ def _decode_one(file: Path, output: Path | None, delaunay: str) -> None:
     click.echo(
         f"decoded {result.container.num_points:,} points in {elapsed:.2f}s "
         f"(Delaunay {sec['delaunay']:.2f}s with {result.backend}, {result.num_tets:,} tets; "
-        f"marching tets {sec['marching_tets']:.2f}s)"
+        f"marching tets {sec['marching_tets']:.2f}s{_smoothing_note(result)})"
     )
+
+
+def _smoothing_note(result) -> str:
+    """'; smoothing ...' for files that ask for it (with the vertices the self-intersection check put back)."""
+    steps = result.container.smoothing
+    if not steps:
+        return ""
+    back = f", {result.restored:,} vertices kept unsmoothed" if result.restored else ""
+    return f"; {steps} smoothing step{'s' if steps > 1 else ''} {result.seconds.get('smoothing', 0.0):.2f}s{back}"

@@ -257,3 +257,24 @@ def test_batch_decoding_works_without_torch(tmp_path):
         np.testing.assert_allclose(v, ref_v, atol=1e-6)
     check = subprocess.run([sys.executable, "-c", "import torch"], capture_output=True, text=True, env=env)
     assert check.returncode != 0  # the blocker works
+
+
+def test_decode_of_a_smoothed_file_reports_its_smoothing(tmp_path):
+    from tetweave_codec.formats.common import FLAG_S_PREDICTED, smoothing_flags
+    from tetweave_codec.formats.tw2 import pack_v2, quantize_file
+
+    rng = np.random.default_rng(0)
+    pts = rng.uniform(-1, 1, (1500, 3))
+    s = np.linalg.norm(pts, axis=1) - 0.6
+    flags = FLAG_S_PREDICTED | smoothing_flags(2)
+    f, _ = quantize_file(
+        pts, s, None, -1, position_bits=8, s_step=1e-3, c_band_steps=[], scale=2.0, offset=OFFSET, flags=flags
+    )
+    path = tmp_path / "smooth.tw"
+    path.write_bytes(pack_v2(f))
+    result = run("decode", path, "-o", tmp_path / "out.ply")
+    assert result.exit_code == 0, result.output
+    assert "2 smoothing steps" in result.output
+    v, faces = load_mesh(tmp_path / "out.ply")
+    ref_v, ref_f = decode_bytes(path.read_bytes())
+    assert np.array_equal(faces, ref_f) and np.allclose(v, ref_v, rtol=0, atol=1e-5)
