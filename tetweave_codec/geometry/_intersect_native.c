@@ -101,17 +101,14 @@ static inline int seg_cross_given(double sp, double sq, const double *p, const d
  * (x1 - x0) x (x2 - x0). orient(x0, x1, x2, y) is computed as n_x . (y - x0): the same operations in the same
  * order as the reference's. */
 static int pair_intersects(const double *ta, const double *tb, const int64_t *fa, const int64_t *fb,
-                           const double *na, const double *nb) {
-    int shared_a[3], n_shared = 0, shared_b[3] = {0, 0, 0};
-    for (int i = 0; i < 3; i++) {
-        shared_a[i] = 0;
-        for (int j = 0; j < 3; j++)
-            if (fa[i] == fb[j]) {
-                shared_a[i] = 1;
-                shared_b[j] = 1;
-            }
-        n_shared += shared_a[i];
-    }
+                           const double *na, const double *nb, const double *box_a, const double *box_b,
+                           double nlen_b) {
+    /* bit j of m[i]: vertex i of a is vertex j of b (branch-free: most pairs are neighbours in a fan) */
+    int m0 = (fa[0] == fb[0]) | (fa[0] == fb[1]) << 1 | (fa[0] == fb[2]) << 2;
+    int m1 = (fa[1] == fb[0]) | (fa[1] == fb[1]) << 1 | (fa[1] == fb[2]) << 2;
+    int m2 = (fa[2] == fb[0]) | (fa[2] == fb[1]) << 1 | (fa[2] == fb[2]) << 2;
+    int shared_a[3] = {m0 != 0, m1 != 0, m2 != 0}, used = m0 | m1 | m2;
+    int n_shared = shared_a[0] + shared_a[1] + shared_a[2];
     if (n_shared >= 2) return 0;
     const double *a[3], *b[3];
     for (int i = 0; i < 3; i++) {
@@ -119,26 +116,44 @@ static int pair_intersects(const double *ta, const double *tb, const int64_t *fa
         b[i] = tb + 3 * i;
     }
     double d[3], oa[3], ob[3];
+    if (n_shared == 1) {
+        /* only the two other vertices of each face matter: orient them lazily, each side on its own */
+        int pa[2], pb[2], ka = 0, kb = 0;
+        for (int i = 0; i < 3; i++) {
+            if (!shared_a[i]) pa[ka++] = i;
+            if (!(used >> i & 1)) pb[kb++] = i;
+        }
+        if (ka != 2 || kb != 2) return 0; /* a repeated index in one face: never a valid face */
+        for (int i = 0; i < 2; i++) {
+            sub3(a[pa[i]], b[0], d);
+            oa[i] = dot3(nb, d); /* orient(b0, b1, b2, a_pa[i]) */
+        }
+        if (seg_cross_given(oa[0], oa[1], a[pa[0]], a[pa[1]], b[0], b[1], b[2])) return 1;
+        for (int i = 0; i < 2; i++) {
+            sub3(b[pb[i]], a[0], d);
+            ob[i] = dot3(na, d); /* orient(a0, a1, a2, b_pb[i]) */
+        }
+        return seg_cross_given(ob[0], ob[1], b[pb[0]], b[pb[1]], a[0], a[1], a[2]);
+    }
     for (int i = 0; i < 3; i++) {
         sub3(a[i], b[0], d);
         oa[i] = dot3(nb, d); /* orient(b0, b1, b2, a_i) */
         sub3(b[i], a[0], d);
         ob[i] = dot3(na, d); /* orient(a0, a1, a2, b_i) */
     }
-    if (n_shared == 1) {
-        int pa[2], pb[2], ka = 0, kb = 0;
-        for (int i = 0; i < 3; i++) {
-            if (!shared_a[i]) pa[ka++] = i;
-            if (!shared_b[i]) pb[kb++] = i;
-        }
-        if (ka != 2 || kb != 2) return 0; /* a repeated index in one face: never a valid face */
-        return seg_cross_given(oa[pa[0]], oa[pa[1]], a[pa[0]], a[pa[1]], b[0], b[1], b[2]) ||
-               seg_cross_given(ob[pb[0]], ob[pb[1]], b[pb[0]], b[pb[1]], a[0], a[1], a[2]);
-    }
     for (int i = 0; i < 3; i++)
         if (seg_cross_given(oa[i], oa[(i + 1) % 3], a[i], a[(i + 1) % 3], b[0], b[1], b[2])) return 1;
     for (int i = 0; i < 3; i++)
         if (seg_cross_given(ob[i], ob[(i + 1) % 3], b[i], b[(i + 1) % 3], a[0], a[1], a[2])) return 1;
+    /* Cheap exact rejection of the coplanar case: every |coordinate difference| is at most the span of the two
+     * boxes on its axis (rounding is monotone), so this bound is at least the reference's. */
+    double span = 0;
+    for (int k = 0; k < 3; k++) {
+        double hi = box_a[3 + k] > box_b[3 + k] ? box_a[3 + k] : box_b[3 + k];
+        double lo = box_a[k] < box_b[k] ? box_a[k] : box_b[k];
+        if (hi - lo > span) span = hi - lo;
+    }
+    if (fabs(oa[0]) > 1e-12 * nlen_b * span) return 0;
     double scale_a = 0, scale_b = 0;
     for (int i = 0; i < 3; i++)
         for (int k = 0; k < 3; k++) {
@@ -147,7 +162,7 @@ static int pair_intersects(const double *ta, const double *tb, const int64_t *fa
             if (y > scale_b) scale_b = y;
         }
     double scale = scale_a > scale_b ? scale_a : scale_b;
-    double bound = 1e-12 * sqrt(dot3(nb, nb)) * scale;
+    double bound = 1e-12 * nlen_b * scale;
     for (int i = 0; i < 3; i++)
         if (!(fabs(oa[i]) <= bound)) return 0;
     return coplanar_overlap(a, b, nb);
@@ -392,7 +407,7 @@ static PyObject *faces_flags(PyObject *self, PyObject *args) {
         if (r - s > most) most = r - s;
         s = r;
     }
-    local = (double *)malloc(sizeof(double) * 18 * (size_t)most); /* box 6, corners 9, normal 3 */
+    local = (double *)malloc(sizeof(double) * 19 * (size_t)most); /* box 6, corners 9, normal 3, |normal| */
     lcell = (uint64_t *)malloc(sizeof(uint64_t) * 3 * (size_t)most);
     lids = (int64_t *)malloc(sizeof(int64_t) * 4 * (size_t)most); /* face, its 3 vertex indices */
     if (!local || !lcell || !lids) {
@@ -411,7 +426,7 @@ static PyObject *faces_flags(PyObject *self, PyObject *args) {
         }
         for (int64_t i = s; i < r; i++) {
             int64_t p = (int64_t)(e[i] & mask), o = i - s, face = valid[p];
-            double *box = local + 18 * o;
+            double *box = local + 19 * o;
             lids[4 * o] = face;
             for (int k = 0; k < 3; k++) {
                 box[k] = lo[3 * p + k];
@@ -421,26 +436,27 @@ static PyObject *faces_flags(PyObject *self, PyObject *args) {
                 lids[4 * o + 1 + k] = f[3 * face + k];
                 for (int c = 0; c < 3; c++) box[6 + 3 * k + c] = v[3 * f[3 * face + k] + c];
             }
+            box[18] = sqrt(dot3(box + 15, box + 15)); /* as the reference: sqrt(n . n) */
         }
         for (int64_t i = s; i < r; i++) {
-            const double *bp = local + 18 * (i - s);
+            const double *bp = local + 19 * (i - s);
             const uint64_t *cp = lcell + 3 * (i - s);
             const int64_t *ip = lids + 4 * (i - s);
             for (int64_t j = i + 1; j < r; j++) {
-                const double *bq = local + 18 * (j - s);
+                const double *bq = local + 19 * (j - s);
                 const uint64_t *cq = lcell + 3 * (j - s);
                 /* test the pair once: in the cell of the larger lower corner (floor is monotone) */
                 uint64_t mx = cp[0] > cq[0] ? cp[0] : cq[0], my = cp[1] > cq[1] ? cp[1] : cq[1];
                 uint64_t mz = cp[2] > cq[2] ? cp[2] : cq[2];
-                if (((mx * dims_y + my) * dims_z + mz) != key) continue;
-                if (!(bp[0] <= bq[3] && bq[0] <= bp[3] && bp[1] <= bq[4] && bq[1] <= bp[4] && bp[2] <= bq[5] &&
-                      bq[2] <= bp[5]))
-                    continue;
+                /* branch-free: these tests go either way unpredictably, and most pairs fail one */
+                int keep = (((mx * dims_y + my) * dims_z + mz) == key) & (bp[0] <= bq[3]) & (bq[0] <= bp[3]) &
+                           (bp[1] <= bq[4]) & (bq[1] <= bp[4]) & (bp[2] <= bq[5]) & (bq[2] <= bp[5]);
+                if (!keep) continue;
                 /* a cell's entries are sorted by face: ip's face is the lower one */
                 const int64_t *iq = lids + 4 * (j - s);
                 int64_t fa = ip[0], fz = iq[0];
                 if (!only[fa] && !only[fz]) continue;
-                if (pair_intersects(bp + 6, bq + 6, ip + 1, iq + 1, bp + 15, bq + 15)) {
+                if (pair_intersects(bp + 6, bq + 6, ip + 1, iq + 1, bp + 15, bq + 15, bp, bq, bq[18])) {
                     flags[fa] = 1;
                     flags[fz] = 1;
                 }
