@@ -183,12 +183,12 @@ def restore_crossings(smoothed: np.ndarray, original: np.ndarray, faces: np.ndar
     faces = np.asarray(faces, dtype=np.int64)
     restored = np.zeros(len(v), dtype=bool)
     try:
-        changed = None  # the first check tests every pair
+        interest = None  # the first check tests every pair
         for check in range(MAX_CHECKS):
-            # later checks test only pairs with a face whose vertices just went back: every other pair was
-            # tested at these positions by an earlier check and found not to cross (else both faces would have
-            # gone back), so the answer is the same as a check of every pair
-            bad = self_intersecting_faces(v, faces, only=changed)
+            # later checks test only pairs with a face that just changed or crossed at the last check: a pair of
+            # two other faces was tested at these same positions by the last check and did not cross (had it
+            # crossed, both faces would be flagged), so the answer is that of a check of every pair
+            bad = self_intersecting_faces(v, faces, only=interest)
             if not bad.any():
                 return v, int(restored.sum())
             if check == MAX_CHECKS - 1:
@@ -200,7 +200,7 @@ def restore_crossings(smoothed: np.ndarray, original: np.ndarray, faces: np.ndar
                 break
             v[moved] = original[moved]
             restored |= moved
-            changed = moved[faces].any(axis=1)
+            interest = moved[faces].any(axis=1) | bad
     except RuntimeError:  # the check cannot bound its work on this mesh (a hostile file): no smoothing
         pass
     return np.array(original, dtype=np.float64), len(v)
