@@ -186,10 +186,10 @@ class FitConfig:
     smoothing: int = 0
 
 
-# Taubin steps of `tetweave encode` (container v2). Measured with benchmarks/fit_ab.py, one run per setting
-# (benchmarks/results/smoothing.md): bytes x Chamfer against no smoothing, 1 step 0.80-1.01 (median 0.95 over 8
-# cases; spot 0.80-0.86, igea 0.96-1.01, stanford-bunny 0.94-0.96, fandisk 1.00); 2 steps helped spot more
-# (0.78) but cost igea 11 % and fandisk 5 %.
+# Taubin steps of `tetweave encode` (container v2; encoder.default_smoothing turns it off on inputs with sharp
+# creases). Measured with benchmarks/fit_ab.py (benchmarks/results/smoothing.md): bytes x Chamfer against no
+# smoothing, 1 step: spot 0.82-0.87, stanford-bunny 0.94-0.99, igea 0.96-1.01, fandisk 0.95-1.06 (16 cases,
+# median 0.96); 2 steps helped spot more (0.78) but cost igea 11 % and fandisk 5 %.
 DEFAULT_SMOOTHING = 1
 
 # The presets are sized for ITERATION_POINTS points; smaller fits run up to MAX_ITERATION_SCALE times more

@@ -30,8 +30,8 @@ from tetweave_codec.geometry.intersections import self_intersecting_faces
 TAUBIN_LAMBDA = 0.5
 TAUBIN_MU = -0.53
 MAX_STEPS = 3  # the header's two bits
-# Self-intersection checks before the decoder gives up on smoothing altogether (the unsmoothed marching-tets
-# surface never crosses itself).
+# Self-intersection checks before the decoder gives up on smoothing altogether (the unsmoothed surface of an
+# encoder's file never crosses itself; a hostile file's may, through flat tets, and then stays as it is).
 MAX_CHECKS = 5
 
 
