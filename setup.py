@@ -24,12 +24,14 @@ setup(
         Extension(
             "tetweave_codec.geometry._mt_native",
             ["tetweave_codec/geometry/_mt_native.c"],
+            depends=["tetweave_codec/geometry/_native_sort.h"],
             extra_compile_args=FLAGS,
             optional=True,
         ),
         Extension(
             "tetweave_codec.geometry._intersect_native",
             ["tetweave_codec/geometry/_intersect_native.c"],
+            depends=["tetweave_codec/geometry/_native_sort.h"],
             extra_compile_args=FLAGS,
             optional=True,
         ),

@@ -17,6 +17,8 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "_native_sort.h"
+
 #define MAX_CANDIDATE_PAIRS 30000000LL
 
 static int cmp_double(const void *a, const void *b) {
@@ -180,36 +182,6 @@ static int get_buffer(PyObject *obj, Py_buffer *view, Py_ssize_t itemsize, Py_ss
     return 0;
 }
 
-/* LSD radix sort of m keys on their low `bits` bits (11-bit digits). */
-static int radix_sort(uint64_t *a, int64_t m, int bits) {
-    uint64_t *tmp = (uint64_t *)malloc(sizeof(uint64_t) * (size_t)(m > 0 ? m : 1));
-    if (!tmp) return -1;
-    int64_t count[2048];
-    for (int shift = 0; shift < bits; shift += 11) {
-        memset(count, 0, sizeof(count));
-        for (int64_t i = 0; i < m; i++) count[(a[i] >> shift) & 2047]++;
-        int64_t sum = 0;
-        for (int d = 0; d < 2048; d++) {
-            int64_t c = count[d];
-            count[d] = sum;
-            sum += c;
-        }
-        for (int64_t i = 0; i < m; i++) tmp[count[(a[i] >> shift) & 2047]++] = a[i];
-        memcpy(a, tmp, sizeof(uint64_t) * (size_t)m);
-    }
-    free(tmp);
-    return 0;
-}
-
-static int bit_length(uint64_t v) {
-    int b = 0;
-    while (v) {
-        b++;
-        v >>= 1;
-    }
-    return b;
-}
-
 /* The reference's _grid_pairs decision for cell size `cell`: 0 feasible, 1 "coarser", 2 "finer", -1 out of memory,
  * 3 the cell keys do not fit 64 bits (a degenerate spread of sizes; the caller treats it as a failure).
  * On success *keys holds the sorted entries (cell key << face_bits | face), *count their number, c0 (n,3) the
@@ -248,10 +220,13 @@ static int grid(const double *lo, const double *hi, int64_t n, double cell, cons
                     e[t++] = ((((uint64_t)x * (uint64_t)dims[1] + (uint64_t)y) * (uint64_t)dims[2] + (uint64_t)z)
                               << fb) | (uint64_t)i;
     }
-    if (radix_sort(e, t, fb + cb) < 0) {
+    uint64_t *tmp = (uint64_t *)malloc(sizeof(uint64_t) * (size_t)(t > 0 ? t : 1));
+    if (!tmp) {
         free(e);
         return -1;
     }
+    radix_sort(e, tmp, t, fb + cb);
+    free(tmp);
     long long pairs = 0;
     for (int64_t s = 0; s < t;) {
         int64_t r = s + 1;

@@ -21,6 +21,7 @@ decoded mesh free of self-intersections. Connectivity never changes: a closed 2-
 
 from __future__ import annotations
 
+import functools
 from typing import Any
 
 import numpy as np
@@ -134,10 +135,13 @@ class TaubinOperator:
             return vertices
         if not _is_torch(vertices) or vertices.device.type != "cpu":
             return taubin(vertices, self.faces, self.steps, self.lam, self.mu, edges=self.edges)
-        return _ApplyLinear.apply(vertices, self._csr(np.dtype(str(vertices.dtype).replace("torch.", ""))), self.steps)
+        factors = self._csr(np.dtype(str(vertices.dtype).replace("torch.", "")))
+        return _apply_linear().apply(vertices, factors, self.steps)
 
 
-def _make_apply_linear():
+@functools.cache
+def _apply_linear():
+    """The autograd function (built on first use: this module must not import torch, the decoder uses it)."""
     import torch
 
     class ApplyLinear(torch.autograd.Function):
@@ -161,18 +165,6 @@ def _make_apply_linear():
             return torch.from_numpy(np.ascontiguousarray(g)), None, None
 
     return ApplyLinear
-
-
-class _LazyApply:
-    fn = None
-
-    def apply(self, *args):
-        if _LazyApply.fn is None:
-            _LazyApply.fn = _make_apply_linear()
-        return _LazyApply.fn.apply(*args)
-
-
-_ApplyLinear = _LazyApply()
 
 
 def restore_crossings(smoothed: np.ndarray, original: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, int]:
