@@ -70,11 +70,18 @@ def run(args: argparse.Namespace) -> None:
             vertices, faces = load_mesh(Path(args.meshes) / f"{name}.ply")
             t0 = time.process_time()
             result = encode(
-                vertices, faces, size=parse_count(size), device="cpu", seed=args.seed, smoothing=args.smoothing
+                vertices,
+                faces,
+                size=parse_count(size),
+                device="cpu",
+                seed=args.seed,
+                smoothing=args.smoothing,
+                subdivision=args.subdivision,
             )
             stats = result.stats
             row = dict(
-                tag=args.tag, settings=changes, smoothing=args.smoothing, mesh=name, size=parse_count(size),
+                tag=args.tag, settings=changes, smoothing=args.smoothing, subdivision=args.subdivision, mesh=name,
+                size=parse_count(size),
                 seed=args.seed,
                 bytes=stats["bytes"], chamfer=stats["chamfer"], bxc=stats["bytes"] * stats["chamfer"],
                 cpu=round(time.process_time() - t0, 1), points=stats["points_kept"],
@@ -121,6 +128,7 @@ def main(argv: list[str] | None = None) -> None:
     p_run.add_argument("--meshes", type=Path, default=DEFAULT_MESHES)
     p_run.add_argument("--seed", type=int, default=0)
     p_run.add_argument("--smoothing", type=int, default=None, help="Taubin steps (default: the encoder's)")
+    p_run.add_argument("--subdivision", type=int, default=None, help="Loop levels (default: the encoder's)")
     p_run.add_argument("--out", default="fit_ab.jsonl")
     p_cmp = sub.add_parser("compare", help="tabulate the rows of several variants")
     p_cmp.add_argument("rows")

@@ -2,7 +2,8 @@
 
 Seed files are valid version-2 files: analytic point sets written with `quantize_file` + `pack_v2` (lattice
 cells in a shell around a torus or a sphere, 6-12 position bits, SH degrees -1..3, both Delaunay flags, s
-predicted or not, octree context-coded (flags bit 2) or not, 0-3 smoothing steps (flags bits 3-4); plus the edge
+predicted or not, octree context-coded (flags bit 2) or not, 0-3 smoothing steps (flags bits 3-4), 0-2 Loop
+subdivision levels (bits 5-6); plus the edge
 cases N = 0 and N = 1..5) and any real files given with ``--files``. Each case applies 1-3 mutations that know
 the layout (header fields, the three section sizes, the sections' bytes) and then, in 95 % of cases, rewrites the
 section sizes and recomputes the CRC so that the mutation reaches the parsers behind the checksum:
@@ -52,6 +53,7 @@ from tetweave_codec.formats.common import (
     FLAG_S_PREDICTED,
     seal,
     smoothing_flags,
+    subdivision_flags,
 )
 from tetweave_codec.formats.tw2 import FIXED_SIZE, MAX_POINTS, header_size, pack_v2, quantize_file
 
@@ -113,6 +115,7 @@ def seed_files(seed: int = 0, max_points: int = 3000) -> list[tuple[str, bytes]]
         flags = (FLAG_QHULL if k % 3 == 1 else 0) | (FLAG_S_PREDICTED if k % 4 != 3 else 0)
         flags |= FLAG_OCTREE_CONTEXTS if k % 5 in (1, 2, 4) else 0  # context-coded positions in 3 of 5
         flags |= smoothing_flags(k % 4)  # smoothing 0-3 steps
+        flags |= subdivision_flags((k // 4) % 3)  # subdivision 0-2 levels, with every smoothing
         f, _ = quantize_file(
             Q.dequantize_positions(cells, bits), sdf + rng.normal(scale=2e-3, size=len(sdf)), c, degree,
             position_bits=bits, s_step=float(rng.choice([2e-4, 5e-4, 1e-3])),
@@ -367,21 +370,21 @@ def classify_result(result) -> tuple[str, str]:
     status = manifold3d.Manifold(mesh).status()
     if status != manifold3d.Error.NoError:
         return "non_manifold", f"manifold3d: {status.name}"
-    if result.container.smoothing:  # smoothing is the one decoder step that may move a face through another
+    c = result.container
+    if c.smoothing or c.subdivision:  # the decoder's filter is the one step that may move a face through another
         from tetweave_codec.decoder import mesh_from_points
         from tetweave_codec.geometry.intersections import self_intersecting_faces
 
         # the decoder's own normalized-frame mesh (the transform back may round vertices together)
-        c = result.container
-        nv, nf = mesh_from_points(c.points, c.s, c.c, c.sh_degree, result.backend, c.smoothing)
+        nv, nf = mesh_from_points(c.points, c.s, c.c, c.sh_degree, result.backend, c.smoothing, c.subdivision)
         try:
             crossing = int(self_intersecting_faces(nv, nf).sum())
         except RuntimeError:  # the decoder falls back to the unsmoothed surface in this case too
             crossing = 0
-        # smoothing must add no crossing: either none is left, or the decoder kept the unsmoothed extraction
+        # the filter must add no crossing: either none is left, or the decoder kept the unfiltered extraction
         # (whose crossings, possible only with saturated SH terms that put vertices on points, are not its own)
         if crossing and result.restored != len(nv):
-            return "non_manifold", f"{crossing} self-intersecting faces after smoothing"
+            return "non_manifold", f"{crossing} self-intersecting faces after smoothing / subdivision"
     return "closed", f"{result.backend} {result.container.num_points} points {len(f)} faces"
 
 

@@ -137,9 +137,12 @@ def _decode_one(file: Path, output: Path | None, delaunay: str) -> None:
 
 
 def _smoothing_note(result) -> str:
-    """'; smoothing ...' for files that ask for it (with the vertices the self-intersection check put back)."""
-    steps = result.container.smoothing
-    if not steps:
+    """'; smoothing ...' / '; subdivision ...' for files that ask for them (with the vertices the
+    self-intersection check put back)."""
+    steps, levels = result.container.smoothing, result.container.subdivision
+    if not steps and not levels:
         return ""
+    parts = [f"{steps} smoothing step{'s' if steps > 1 else ''}"] if steps else []
+    parts += [f"{levels} subdivision level{'s' if levels > 1 else ''}"] if levels else []
     back = f", {result.restored:,} vertices kept unsmoothed" if result.restored else ""
-    return f"; {steps} smoothing step{'s' if steps > 1 else ''} {result.seconds.get('smoothing', 0.0):.2f}s{back}"
+    return f"; {' + '.join(parts)} {result.seconds.get('smoothing', 0.0):.2f}s{back}"

@@ -141,6 +141,14 @@ def _progress_lines(every_s: float = PROGRESS_LINE_SECONDS):
     help="v2: Taubin smoothing steps the decoder applies to the surface (the fit optimizes the smoothed surface; "
     "0 = none).  [default: 1; 0 for inputs with sharp creases (CAD) and with --format-version 1]",
 )
+@click.option(
+    "--subdivision",
+    type=click.IntRange(0, 2),
+    default=None,
+    help="v2: Loop subdivision levels the decoder applies after the smoothing (each makes 4x the faces; the fit "
+    "optimizes the subdivided surface; 0 = none).  [default: 1; 0 for inputs with sharp creases (CAD) and with "
+    "--format-version 1]",
+)
 @device_option
 @click.option("--seed", type=int, default=0, help="Seed of every random choice: same seed, same bytes.")
 @threads_option
@@ -162,6 +170,7 @@ def encode(
     s_step: float | None,
     c_step: float | None,
     smoothing: int | None,
+    subdivision: int | None,
     device: str,
     seed: int,
     threads: int,
@@ -192,6 +201,7 @@ def encode(
         s_step=s_step,
         c_step=c_step,
         smoothing=smoothing,
+        subdivision=subdivision,
         device=device,
         seed=seed,
         threads=threads or (BATCH_THREADS if batch else 0),

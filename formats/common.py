@@ -23,8 +23,13 @@ FLAG_OCTREE_CONTEXTS = 1 << 2  # version 2: octree levels may be coded bit by bi
 # version 2, bits 3-4: the number of Taubin smoothing steps the decoder applies (geometry/smoothing.py), 0-3
 SMOOTHING_SHIFT = 3
 FLAG_SMOOTHING = 0b11 << SMOOTHING_SHIFT
+# version 2, bits 5-6: the number of Loop subdivision levels the decoder applies after the smoothing
+# (geometry/subdivision.py), 0-2; 3 is rejected
+SUBDIVISION_SHIFT = 5
+FLAG_SUBDIVISION = 0b11 << SUBDIVISION_SHIFT
+MAX_SUBDIVISION = 2
 KNOWN_FLAGS = FLAG_QHULL  # version 1
-KNOWN_FLAGS_V2 = FLAG_QHULL | FLAG_S_PREDICTED | FLAG_OCTREE_CONTEXTS | FLAG_SMOOTHING
+KNOWN_FLAGS_V2 = FLAG_QHULL | FLAG_S_PREDICTED | FLAG_OCTREE_CONTEXTS | FLAG_SMOOTHING | FLAG_SUBDIVISION
 # Largest normalized coordinate of version 1 (any finite float16); version 2's is the grid's, quantize.GRID_BOUND.
 COORDINATE_BOUND_V1 = float(np.finfo(np.float16).max)
 
@@ -39,6 +44,18 @@ def smoothing_flags(steps: int) -> int:
 def smoothing_steps(flags: int) -> int:
     """The Taubin smoothing steps a file's flags ask for (0 for version 1, whose reader rejects the bits)."""
     return (int(flags) & FLAG_SMOOTHING) >> SMOOTHING_SHIFT
+
+
+def subdivision_flags(levels: int) -> int:
+    """Flags bits recording `levels` (0-2) Loop subdivision levels of the decoded surface (version 2)."""
+    if not 0 <= int(levels) <= MAX_SUBDIVISION:
+        raise ValueError(f"subdivision levels must be 0-{MAX_SUBDIVISION}, got {levels}")
+    return int(levels) << SUBDIVISION_SHIFT
+
+
+def subdivision_levels(flags: int) -> int:
+    """The Loop subdivision levels a file's flags ask for (0 for version 1; 3 is invalid: `flags_problem`)."""
+    return (int(flags) & FLAG_SUBDIVISION) >> SUBDIVISION_SHIFT
 
 
 def backend_flags(backend: str) -> int:

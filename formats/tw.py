@@ -104,6 +104,11 @@ class TetWeaveFile:
         """Version 1 files are never smoothed."""
         return 0
 
+    @property
+    def subdivision(self) -> int:
+        """Version 1 files are never subdivided."""
+        return 0
+
 
 def payload_size(num_points: int, sh_degree: int) -> int:
     """Raw payload size in bytes for N points and an SH degree: 2 * N * (4 + q)."""

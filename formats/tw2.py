@@ -8,7 +8,8 @@ offset  size       type     field
 0       8          bytes    magic ``89 54 57 56 0D 0A 1A 0A`` (as version 1)
 8       2          uint16   version = 2
 10      1          uint8    flags; bit 0: Delaunay backend (0 = TetGen, 1 = Qhull); bit 1: s predicted;
-                            bit 2: octree context-coded; bits 3-4: smoothing steps 0-3; others 0
+                            bit 2: octree context-coded; bits 3-4: smoothing steps 0-3;
+                            bits 5-6: subdivision levels 0-2; bit 7: 0
 11      1          int8     SH degree d in -1..3
 12      1          uint8    position bits b in 6..16
 13      4          uint32   N, number of points (<= MAX_POINTS)
@@ -42,6 +43,7 @@ from .common import (
     FLAG_S_PREDICTED,
     KNOWN_FLAGS_V2,
     MAGIC,
+    MAX_SUBDIVISION,
     backend_name,
     check_envelope,
     checked_fields,
@@ -51,6 +53,7 @@ from .common import (
     require_size,
     seal,
     smoothing_steps,
+    subdivision_levels,
 )
 
 VERSION = 2
@@ -77,7 +80,8 @@ class TetWeaveFileV2:
     position_bits: b in 6..16. s_step: float (stored as float32). c_band_steps: d + 1 floats (float32).
     sh_degree: -1..3. scale, offset: ``original = normalized * scale + offset``. flags: bit 0 = Qhull, bit 1 = s
     coded as prediction residuals, bit 2 = octree levels context-coded (what the encoder writes), bits 3-4 =
-    Taubin smoothing steps of the decoded surface (`smoothing`).
+    Taubin smoothing steps of the decoded surface (`smoothing`), bits 5-6 = Loop subdivision levels after it
+    (`subdivision`).
     sizes: byte size of each part of the file it was read from ("header", "positions", "s", "c",
     "checksum"), or None for a file built in memory.
 
@@ -110,6 +114,11 @@ class TetWeaveFileV2:
     def smoothing(self) -> int:
         """Taubin smoothing steps the decoder applies to the extracted surface (flags bits 3-4)."""
         return smoothing_steps(self.flags)
+
+    @property
+    def subdivision(self) -> int:
+        """Loop subdivision levels the decoder applies after the smoothing (flags bits 5-6)."""
+        return subdivision_levels(self.flags)
 
     @cached_property
     def points(self) -> np.ndarray:
@@ -200,6 +209,8 @@ def pack_v2(f: TetWeaveFileV2) -> bytes:
     if len(band_steps) != degree + 1:
         raise ValueError(f"need {degree + 1} c band steps for SH degree {degree}, got {len(band_steps)}")
     scale, offset, flags = checked_fields(f.scale, f.offset, f.flags, KNOWN_FLAGS_V2, Q.GRID_BOUND)
+    if subdivision_levels(flags) > MAX_SUBDIVISION:
+        raise ValueError(f"subdivision levels must be 0-{MAX_SUBDIVISION}, got {subdivision_levels(flags)}")
     models, words = octree.encode(cells, bits, contexts=bool(flags & common.FLAG_OCTREE_CONTEXTS))
     if flags & FLAG_S_PREDICTED:
         s_section = attributes.encode_s_predicted(s_sym, cells)
@@ -227,6 +238,10 @@ def unpack_v2(buf: bytes) -> TetWeaveFileV2:
     check_envelope(buf, hsize + sum(section_sizes) + CHECKSUM_SIZE)
     # Behind a valid checksum: the remaining checks catch files written wrongly (or forged) rather than damaged.
     flags = read_flags(flags, KNOWN_FLAGS_V2)
+    if subdivision_levels(flags) > MAX_SUBDIVISION:
+        raise ContainerError(
+            f"invalid .tw header: {subdivision_levels(flags)} subdivision levels (expected 0..{MAX_SUBDIVISION})"
+        )
     if not Q.POSITION_BITS_MIN <= bits <= Q.POSITION_BITS_MAX:
         raise ContainerError(
             f"invalid .tw header: {bits} position bits (expected {Q.POSITION_BITS_MIN}..{Q.POSITION_BITS_MAX})"

@@ -79,6 +79,56 @@ def test_native_flags_the_references_faces_on_smoothed_surfaces(steps, lam, mu):
         np.testing.assert_array_equal(native, reference)
 
 
+@needs_native
+@pytest.mark.parametrize("levels", [1, 2])
+def test_native_flags_the_references_faces_on_subdivided_surfaces(levels):
+    """Loop-subdivided and midpoint-refined jagged surfaces (many coplanar pairs and segments lying in another
+    face's plane, where the orientations are rounding noise)."""
+    from tetweave_codec.geometry.subdivision import loop_subdivide, midpoint_subdivide
+
+    for solid in (manifold3d.Manifold.sphere(1.0, 16), manifold3d.Manifold.cube([1, 0.1, 1], True)):
+        m = solid.to_mesh()
+        v = np.asarray(m.vert_properties, float)[:, :3]
+        f = np.asarray(m.tri_verts, np.int64)
+        noisy = v + np.random.default_rng(levels).normal(0, 0.03, v.shape)
+        for refine in (loop_subdivide, midpoint_subdivide):
+            native, reference = both(*refine(noisy, f, levels))
+            np.testing.assert_array_equal(native, reference)
+
+
+def test_midpoint_refinement_of_a_clean_surface_crosses_nothing(path):
+    """The decoder's reference for subdivided files: the unsmoothed surface split at its edge midpoints. Its
+    children of one face are coplanar and its new edges lie in neighbouring faces' planes: rounding noise there
+    must not count as crossing (coplanar pairs go to the in-plane test, segment ends within 1e-12 of a plane
+    touch it)."""
+    from tetweave_codec.decoder import mesh_from_points
+    from tetweave_codec.geometry.subdivision import midpoint_subdivide
+
+    rng = np.random.default_rng(3)
+    pts = rng.uniform(-1, 1, (600, 3))
+    v0, f0 = mesh_from_points(pts, np.linalg.norm(pts, axis=1) - 0.7, None, -1)
+    assert not I.self_intersecting_faces(v0, f0).any()
+    for levels in (1, 2):
+        assert not I.self_intersecting_faces(*midpoint_subdivide(v0, f0, levels)).any()
+
+
+def test_coplanar_fold_around_a_shared_vertex(path):
+    """Two coplanar faces sharing one vertex whose interiors overlap (a fold within the plane) cross; side by
+    side they do not."""
+    v = np.array([[0, 0, 0], [2, 0, 0], [0, 2, 0], [2, 1, 0], [1, 2, 0], [-2, 0, 0], [0, -2, 0]], float)
+    assert I.self_intersecting_faces(v, np.array([[0, 1, 2], [0, 3, 4]])).all()
+    assert not I.self_intersecting_faces(v, np.array([[0, 1, 2], [0, 5, 6]])).any()
+
+
+def test_a_segment_in_the_plane_touches(path):
+    """An edge lying in another face's plane (within 1e-12 of it, here through rounding) does not cross it."""
+    third = 1.0 / 3.0
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [third, third, 1e-17], [third, third, -1e-17], [0.2, 0.3, 1]])
+    assert not I.self_intersecting_faces(v, np.array([[0, 1, 2], [3, 4, 5]])).any()
+    v[3, 2], v[4, 2] = 1e-3, -1e-3
+    assert I.self_intersecting_faces(v, np.array([[0, 1, 2], [3, 4, 5]])).all()
+
+
 def test_crossing_and_touching(path):
     v = np.array([[0, 0, 0], [2, 0, 0], [0, 2, 0], [0.5, 0.5, -1], [0.5, 0.5, 1], [1.5, 1.5, 0.2]], float)
     assert I.self_intersecting_faces(v, np.array([[0, 1, 2], [3, 4, 5]])).tolist() == [True, True]

@@ -15,9 +15,10 @@ from scipy.spatial import Delaunay
 from tetweave_codec.decoder import decode_detailed, mesh_from_points
 from tetweave_codec.errors import InputError
 from tetweave_codec.formats.common import KNOWN_FLAGS_V2, smoothing_flags, smoothing_steps
-from tetweave_codec.geometry import smoothing
+from tetweave_codec.geometry import surface_filter
 from tetweave_codec.geometry.intersections import self_intersecting_faces
-from tetweave_codec.geometry.smoothing import TAUBIN_LAMBDA, TAUBIN_MU, mesh_edges, restore_crossings, taubin
+from tetweave_codec.geometry.smoothing import TAUBIN_LAMBDA, TAUBIN_MU, mesh_edges, taubin
+from tetweave_codec.geometry.surface_filter import FilterMap, restore_crossings
 
 
 def test_one_step_is_the_spec_formula():
@@ -63,12 +64,13 @@ def test_torch_matches_numpy_and_has_gradients():
 
 @pytest.mark.parametrize("steps", [1, 2])
 def test_the_fits_operator_is_taubin_with_its_transpose_as_gradient(steps):
-    """TaubinOperator (scipy factors, the fit's CPU path) computes taubin's map; gradcheck checks the backward."""
+    """FilterMap without subdivision (scipy factors, the fit's CPU path) computes taubin's map; gradcheck checks
+    the backward."""
     m = trimesh.creation.icosphere(2)
     f = torch.as_tensor(np.asarray(m.faces, np.int64))
     rng = np.random.default_rng(steps)
     v = torch.tensor(m.vertices + rng.normal(0, 0.02, m.vertices.shape), dtype=torch.float64, requires_grad=True)
-    op = smoothing.TaubinOperator(f, len(v), steps)
+    op = FilterMap(f, len(v), steps, 0)
     np.testing.assert_allclose(op(v).detach().numpy(), taubin(v, f, steps).detach().numpy(), rtol=0, atol=1e-13)
     assert torch.autograd.gradcheck(op, (v,), eps=1e-6, atol=1e-8)
     v32 = v.detach().float().requires_grad_()
@@ -103,11 +105,12 @@ def test_crossing_faces_are_restored():
     moved = v.copy()
     moved[len(va) :][va[:, 0] < 0] -= [0.5, 0, 0]  # box B's -x face into box A
     assert self_intersecting_faces(moved, f).any()
-    out, restored = restore_crossings(moved, v, f)
+    out, restored, gave_up = restore_crossings(moved, v, f)
+    assert not gave_up
     assert 0 < restored <= len(v)
     assert not self_intersecting_faces(out, f).any()
     # nothing crosses: the smoothed vertices are kept as they are
-    same, none = restore_crossings(v + 0.01, v, f)
+    same, none, _ = restore_crossings(v + 0.01, v, f)
     assert none == 0
     np.testing.assert_array_equal(same, v + 0.01)
 
@@ -116,7 +119,7 @@ def spec_restore(smoothed, original, faces):
     """formats/README.md "Smoothing" step 3 as written: full tests only."""
     v = np.array(smoothed, dtype=np.float64)
     restored = np.zeros(len(v), dtype=bool)
-    for _ in range(smoothing.MAX_CHECKS):
+    for _ in range(surface_filter.MAX_CHECKS):
         bad = self_intersecting_faces(v, faces)
         if not bad.any():
             return v
@@ -137,7 +140,7 @@ def test_restore_is_the_spec_even_when_the_original_crosses_itself(seed):
     original = np.concatenate([a.vertices, b.vertices + [rng.uniform(0.5, 2.5), 0, 0]])
     faces = np.concatenate([a.faces, b.faces + len(a.vertices)]).astype(np.int64)
     smoothed = original + rng.normal(0, 0.08, original.shape)
-    out, restored = restore_crossings(smoothed, original, faces)
+    out, restored, _ = restore_crossings(smoothed, original, faces)
     np.testing.assert_array_equal(out, spec_restore(smoothed, original, faces))
     if self_intersecting_faces(original, faces).any():
         np.testing.assert_array_equal(out, original)
@@ -149,9 +152,10 @@ def test_restore_gives_up_when_the_check_cannot_bound_its_work(monkeypatch):
     def too_many(*args, **kwargs):
         raise RuntimeError("self-intersection test: too many candidate face pairs")
 
-    monkeypatch.setattr(smoothing, "self_intersecting_faces", too_many)
+    monkeypatch.setattr(surface_filter, "self_intersecting_faces", too_many)
     v = np.random.default_rng(0).normal(size=(4, 3))
-    out, restored = restore_crossings(v + 1, v, np.array([[0, 1, 2], [0, 2, 3]]))
+    out, restored, gave_up = restore_crossings(v + 1, v, np.array([[0, 1, 2], [0, 2, 3]]))
+    assert gave_up
     np.testing.assert_array_equal(out, v)
     assert restored == 4
 
@@ -162,7 +166,7 @@ def test_flags_bits_3_and_4_hold_the_steps():
         assert smoothing_flags(k) & ~KNOWN_FLAGS_V2 == 0
     with pytest.raises(ValueError):
         smoothing_flags(4)
-    assert not (1 << 5) & KNOWN_FLAGS_V2
+    assert not (1 << 7) & KNOWN_FLAGS_V2
 
 
 def test_mesh_from_points_smooths_and_stays_closed():
@@ -186,7 +190,7 @@ def test_encoded_smoothing_decodes_to_the_reported_mesh(steps):
 
     torch.set_num_threads(1)
     m = trimesh.creation.icosphere(2)
-    r = encode(m.vertices, m.faces, points=256, quality="fast", iters=30, device="cpu", smoothing=steps)
+    r = encode(m.vertices, m.faces, points=256, quality="fast", iters=30, device="cpu", smoothing=steps, subdivision=0)
     d = decode_detailed(r.data)
     assert d.container.smoothing == steps
     np.testing.assert_array_equal(d.vertices, r.vertices)
@@ -206,11 +210,11 @@ def test_encoder_refuses_bad_smoothing():
         encode(m.vertices, m.faces, points=128, smoothing=1, container_version=1)
 
 
-def test_default_smoothing_is_off_for_cad_parts_only():
+def test_default_filter_is_off_for_cad_parts_only():
     from tetweave_codec.encoder import default_smoothing
-    from tetweave_codec.fit.config import DEFAULT_SMOOTHING
+    from tetweave_codec.fit.config import DEFAULT_SMOOTHING, DEFAULT_SUBDIVISION
 
     cube = manifold3d.Manifold.cube([2, 1, 1], True).to_mesh()
-    assert default_smoothing(np.asarray(cube.vert_properties)[:, :3] * 50, np.asarray(cube.tri_verts)) == 0
+    assert default_smoothing(np.asarray(cube.vert_properties)[:, :3] * 50, np.asarray(cube.tri_verts)) == (0, 0)
     ball = trimesh.creation.icosphere(3)
-    assert default_smoothing(ball.vertices * 1e-3, ball.faces) == DEFAULT_SMOOTHING == 1
+    assert default_smoothing(ball.vertices * 1e-3, ball.faces) == (DEFAULT_SMOOTHING, DEFAULT_SUBDIVISION) == (1, 1)

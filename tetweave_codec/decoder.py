@@ -6,9 +6,9 @@ float16-rounded arrays), so "what the encoder printed" and "what the decoder wri
 
 The surface is closed where the inside region reaches the convex hull of the points (cap triangles on the
 hull, see `marching_tets`), so every decoded mesh is watertight and 2-manifold, or empty (all s of one sign).
-A version-2 file may ask for Taubin smoothing of that surface (flags bits 3-4, geometry/smoothing.py): the
-connectivity stays, and the vertices of any face that the smoothing made cross another are put back, so the
-mesh stays free of self-intersections.
+A version-2 file may ask for Taubin smoothing of that surface (flags bits 3-4, geometry/smoothing.py) and Loop
+subdivision after it (bits 5-6, geometry/subdivision.py): the vertices of any face that these made cross another
+are put back (geometry/surface_filter.py), so the mesh stays closed, 2-manifold and free of self-intersections.
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ import numpy as np
 from tetweave_codec.geometry.delaunay import available_backends, tetrahedralize
 from tetweave_codec.geometry.marching_tets import marching_tets_numpy
 from tetweave_codec.geometry.sh import check_degree, num_coeffs
-from tetweave_codec.geometry.smoothing import mesh_edges, restore_crossings, taubin
+from tetweave_codec.geometry.surface_filter import filter_surface
 
 
 class DecodeWarning(UserWarning):
@@ -37,10 +37,11 @@ class DecodeResult:
     container: the parsed file (formats.tw.TetWeaveFile for version 1, formats.tw2.TetWeaveFileV2 for version 2;
         both expose `points`, `s`, `c`, which the decoder converts to float64 -- v2's are its dequantized values).
     backend: Delaunay backend actually used.
-    seconds: wall time per stage: "unpack", "delaunay", "marching_tets", "smoothing" (smoothing and its
-        self-intersection check; 0 for files without smoothing).
+    seconds: wall time per stage: "unpack", "delaunay", "marching_tets", "smoothing" (smoothing, subdivision and
+        their self-intersection check; 0 for files without either).
     num_tets: size of the tetrahedralization.
-    restored: vertices the self-intersection check put back to their unsmoothed place.
+    restored: vertices the self-intersection check put back to their unsmoothed place (all of the unsubdivided
+        surface's when the filter was dropped).
     """
 
     vertices: np.ndarray
@@ -59,6 +60,7 @@ def mesh_from_points(
     sh_degree: int,
     backend: str = "auto",
     smoothing: int = 0,
+    subdivision: int = 0,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Extract the TetWeave surface of a point cloud (in the frame of `points`).
 
@@ -69,14 +71,15 @@ def mesh_from_points(
         sh_degree: -1..3.
         backend: Delaunay backend, "auto", "tetgen" or "qhull" (must match the container's flags).
         smoothing: Taubin steps 0-3 (the container's flags bits 3-4).
+        subdivision: Loop levels 0-2 after the smoothing (flags bits 5-6).
     Returns:
         vertices (V, 3) float64, faces (F, 3) int64 (outward; both empty when s has one sign only).
     """
-    result = _extract(points, s, c, sh_degree, backend, {}, time.perf_counter, smoothing)
+    result = _extract(points, s, c, sh_degree, backend, {}, time.perf_counter, smoothing, subdivision)
     return result[0], result[1]
 
 
-def _extract(points, s, c, sh_degree, backend, seconds, clock, smoothing=0):
+def _extract(points, s, c, sh_degree, backend, seconds, clock, smoothing=0, subdivision=0):
     """(vertices, faces, tetrahedralization, restored vertex count), timing each stage into `seconds`."""
     check_degree(sh_degree)
     pts = np.asarray(points, dtype=np.float64)
@@ -95,16 +98,11 @@ def _extract(points, s, c, sh_degree, backend, seconds, clock, smoothing=0):
     t1 = clock()
     mt = marching_tets_numpy(pts, tz.tets, s, coeffs, tz.hull_faces)
     t2 = clock()
-    vertices, restored = mt.vertices, 0
-    if smoothing:
-        # marching tets' output is a checked closed 2-manifold: its half-edges are the edges, once each way
-        edges = mesh_edges(mt.faces, len(mt.vertices), closed=True)
-        smoothed = taubin(mt.vertices, mt.faces, smoothing, edges=edges)
-        vertices, restored = restore_crossings(smoothed, mt.vertices, mt.faces)
+    out = filter_surface(mt.vertices, mt.faces, smoothing, subdivision)
     seconds["delaunay"] = t1 - t0
     seconds["marching_tets"] = t2 - t1
     seconds["smoothing"] = clock() - t2
-    return vertices, mt.faces, tz, restored
+    return out.vertices, out.faces, tz, out.restored
 
 
 def decode(data: bytes, backend: str | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -140,6 +138,8 @@ def decode_detailed(data: bytes, backend: str | None = None, clock=time.perf_cou
                 stacklevel=2,
             )
             backend = available_backends()[0]
-    vertices, faces, tz, restored = _extract(tw.points, tw.s, tw.c, tw.sh_degree, backend, seconds, clock, tw.smoothing)
+    vertices, faces, tz, restored = _extract(
+        tw.points, tw.s, tw.c, tw.sh_degree, backend, seconds, clock, tw.smoothing, tw.subdivision
+    )
     vertices = vertices * float(tw.scale) + tw.offset
     return DecodeResult(vertices, faces, tw, tz.backend, seconds, len(tz.tets), restored)

@@ -19,6 +19,7 @@ import torch
 from tetweave_codec.errors import InputError
 from tetweave_codec.fit.config import (
     DEFAULT_SMOOTHING,
+    DEFAULT_SUBDIVISION,
     FitConfig,
     Quantization,
     default_quantization,
@@ -30,6 +31,7 @@ from tetweave_codec.fit.loop import FitResult, deterministic_torch
 from tetweave_codec.fit.step import FitContext, Params, ProgressFn
 from tetweave_codec.geometry.sh import check_degree
 from tetweave_codec.geometry.smoothing import MAX_STEPS as MAX_SMOOTHING_STEPS
+from tetweave_codec.geometry.subdivision import MAX_LEVELS as MAX_SUBDIVISION
 from tetweave_codec.geometry.triangles import face_areas
 
 DEFAULT_POINTS = 16384
@@ -96,6 +98,7 @@ def encode(
     size: int | None = None,
     max_error: float | None = None,
     smoothing: int | None = None,
+    subdivision: int | None = None,
 ) -> EncodeResult:
     """Fit a TetWeave representation to a triangle mesh and return the `.tw` bytes and the decoded mesh.
 
@@ -112,6 +115,8 @@ def encode(
         metric) is at most `max_error`, at the smallest size rate control finds.
     smoothing: Taubin steps 0-3 the decoder applies to the surface (the fit optimizes the smoothed one); None =
         `default_smoothing` for container version 2, 0 for version 1 (which cannot store it).
+    subdivision: Loop levels 0-2 the decoder applies after the smoothing (the fit optimizes the subdivided
+        surface); None = `default_smoothing`'s choice for container version 2, 0 for version 1.
     Deterministic: the same input, options, seed, device and thread count give the same bytes.
     """
     v, f = _validate(vertices, faces)
@@ -131,8 +136,14 @@ def encode(
         raise InputError(f"smoothing must be 0-{MAX_SMOOTHING_STEPS} steps, got {smoothing}")
     if smoothing and container_version != 2:
         raise InputError("smoothing needs container version 2")
-    if smoothing is None:
-        smoothing = 0 if container_version != 2 else default_smoothing(v, f)
+    if subdivision is not None and not 0 <= subdivision <= MAX_SUBDIVISION:
+        raise InputError(f"subdivision must be 0-{MAX_SUBDIVISION} levels, got {subdivision}")
+    if subdivision and container_version != 2:
+        raise InputError("subdivision needs container version 2")
+    if smoothing is None or subdivision is None:
+        chosen = (0, 0) if container_version != 2 else default_smoothing(v, f)
+        smoothing = chosen[0] if smoothing is None else smoothing
+        subdivision = chosen[1] if subdivision is None else subdivision
     job = Job(
         v,
         f,
@@ -145,6 +156,7 @@ def encode(
         progress,
         scale_iterations=iters is None,
         smoothing=smoothing,
+        subdivision=subdivision,
     )
     if size is not None:
         from tetweave_codec.rate_control import encode_to_size
@@ -164,16 +176,19 @@ def encode(
     return job.result(fin, ctx, points, measure=measure)
 
 
-def default_smoothing(vertices: np.ndarray, faces: np.ndarray) -> int:
-    """The decoder smoothing `encode` picks for a mesh: DEFAULT_SMOOTHING steps, none when the input has sharp
-    creases (`fit.features.detect_features(...).found`: CAD parts). Why: smoothing rounds every crease the fit
-    reproduces; on CSG parts it doubled the edge Chamfer distance at 1-2 KB (benchmarks/results/smoothing.md),
-    while on scans and smooth shapes it saves 3-20 % of the bytes at equal error. vertices (V,3) in any frame
-    (the creases are looked for in the normalized frame, as the fit's start does)."""
+def default_smoothing(vertices: np.ndarray, faces: np.ndarray) -> tuple[int, int]:
+    """The decoder filter `encode` picks for a mesh, (Taubin steps, Loop levels): (DEFAULT_SMOOTHING,
+    DEFAULT_SUBDIVISION), none when the input has sharp creases (`fit.features.detect_features(...).found`: CAD
+    parts). Why: both round every crease the fit reproduces; on CSG parts smoothing doubled the edge Chamfer
+    distance at 1-2 KB (benchmarks/results/smoothing.md), while on scans and smooth shapes they save bytes at
+    equal error (benchmarks/results/subdivision.md). vertices (V,3) in any frame (the creases are looked for in
+    the normalized frame, as the fit's start does)."""
     from tetweave_codec.fit.features import detect_features
     from tetweave_codec.meshio import normalize
 
-    return 0 if detect_features(normalize(vertices)[0], faces).found else DEFAULT_SMOOTHING
+    if detect_features(normalize(vertices)[0], faces).found:
+        return 0, 0
+    return DEFAULT_SMOOTHING, DEFAULT_SUBDIVISION
 
 
 class Job:
@@ -182,10 +197,23 @@ class Job:
     of one Job."""
 
     def __init__(
-        self, v, f, sh_degree, schedule, quality, device, seed, init, progress, scale_iterations=True, smoothing=0
+        self,
+        v,
+        f,
+        sh_degree,
+        schedule,
+        quality,
+        device,
+        seed,
+        init,
+        progress,
+        scale_iterations=True,
+        smoothing=0,
+        subdivision=0,
     ):
         """scale_iterations: run `fit.config.scaled_schedule` of `schedule` for each point count (off when the
-        caller fixed the iterations). smoothing: the decoder's Taubin steps (stored in the file)."""
+        caller fixed the iterations). smoothing, subdivision: the decoder's Taubin steps and Loop levels (stored
+        in the file)."""
         from tetweave_codec.meshio import normalize
 
         self.t_start = time.perf_counter()
@@ -194,7 +222,7 @@ class Job:
         self.sh_degree, self.schedule, self.quality = sh_degree, schedule, quality
         self.device, self.seed, self.init, self.progress = device, seed, init, progress
         self.scale_iterations = scale_iterations
-        self.smoothing = smoothing
+        self.smoothing, self.subdivision = smoothing, subdivision
         self.seconds: dict[str, float] = {}
 
     def config(self, points: int, quantization: Quantization | None) -> FitConfig:
@@ -206,6 +234,7 @@ class Job:
             seed=self.seed,
             quantization=quantization,
             smoothing=self.smoothing,
+            subdivision=self.subdivision,
         )
 
     def main_stage(self, points: int, quantization: Quantization | None) -> tuple[FitContext, Params]:
@@ -216,7 +245,15 @@ class Job:
 
     def pack(self, fin: FinishResult, ctx: FitContext) -> bytes:
         return pack_result(
-            FitResult(fin, self.sh_degree, ctx.backend, ctx.seconds, ctx.history, ctx.config.smoothing),
+            FitResult(
+                fin,
+                self.sh_degree,
+                ctx.backend,
+                ctx.seconds,
+                ctx.history,
+                ctx.config.smoothing,
+                ctx.config.subdivision,
+            ),
             self.scale,
             self.offset,
         )
@@ -273,7 +310,12 @@ class Job:
 def pack_result(result: FitResult, scale: float, offset: np.ndarray) -> bytes:
     """The `.tw` bytes of a fit: version 1 or 2 after `result.finish.version`."""
     from tetweave_codec.formats import octree
-    from tetweave_codec.formats.common import FLAG_OCTREE_CONTEXTS, FLAG_S_PREDICTED, smoothing_flags
+    from tetweave_codec.formats.common import (
+        FLAG_OCTREE_CONTEXTS,
+        FLAG_S_PREDICTED,
+        smoothing_flags,
+        subdivision_flags,
+    )
     from tetweave_codec.formats.tw import TetWeaveFile, TetWeaveFileV2, backend_flags, pack, pack_v2
 
     fin = result.finish
@@ -284,10 +326,10 @@ def pack_result(result: FitResult, scale: float, offset: np.ndarray) -> bytes:
         "flags": backend_flags(result.backend),
     }
     if fin.version == 1:
-        if result.smoothing:
-            raise ValueError("container version 1 cannot store smoothing")
+        if result.smoothing or result.subdivision:
+            raise ValueError("container version 1 cannot store smoothing or subdivision")
         return pack(TetWeaveFile(points=fin.points, s=fin.s, c=fin.c, **shared))
-    shared["flags"] |= smoothing_flags(result.smoothing)
+    shared["flags"] |= smoothing_flags(result.smoothing) | subdivision_flags(result.subdivision)
     q = fin.quantization
     steps = tuple(q.c_band_steps[: result.sh_degree + 1])
     shared["flags"] |= FLAG_S_PREDICTED

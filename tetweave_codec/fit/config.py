@@ -184,6 +184,9 @@ class FitConfig:
     # Taubin steps the decoder applies to the surface (container v2 flags bits 3-4, geometry/smoothing.py); the fit
     # optimizes the smoothed surface.
     smoothing: int = 0
+    # Loop subdivision levels the decoder applies after the smoothing (v2 flags bits 5-6,
+    # geometry/subdivision.py); the fit optimizes the subdivided surface.
+    subdivision: int = 0
 
 
 # Taubin steps of `tetweave encode` (container v2; encoder.default_smoothing turns it off on inputs with sharp
@@ -191,6 +194,9 @@ class FitConfig:
 # smoothing, 1 step: spot 0.82-0.87, stanford-bunny 0.94-0.99, igea 0.96-1.01, fandisk 0.95-1.06 (16 cases,
 # median 0.96); 2 steps helped spot more (0.78) but cost igea 11 % and fandisk 5 %.
 DEFAULT_SMOOTHING = 1
+# Loop levels of `tetweave encode` after the smoothing (same exception). Measured in
+# benchmarks/results/subdivision.md.
+DEFAULT_SUBDIVISION = 1
 
 # The presets are sized for ITERATION_POINTS points; smaller fits run up to MAX_ITERATION_SCALE times more
 # iterations (scale sqrt(ITERATION_POINTS / points)), which costs about the time the smaller fit saves per

@@ -79,7 +79,7 @@ class FitResult:
     finish: the stored arrays (float16 for v1, integer symbols for v2), see finish.FinishResult.
     backend: Delaunay backend of the final triangulation; the decoder must use the same.
     stage_seconds: wall time per stage. history: (stage, iteration, loss) samples.
-    smoothing: Taubin steps of the decoder (stored in version-2 flags).
+    smoothing: Taubin steps of the decoder, subdivision: its Loop levels (both stored in version-2 flags).
     """
 
     finish: FinishResult
@@ -88,6 +88,7 @@ class FitResult:
     stage_seconds: dict[str, float]
     history: list[tuple[str, int, float]]
     smoothing: int = 0
+    subdivision: int = 0
 
 
 def _importance(params: Params, grid: Grid, ctx: FitContext) -> tuple[Tensor, Tensor, Tensor] | None:
@@ -97,7 +98,9 @@ def _importance(params: Params, grid: Grid, ctx: FitContext) -> tuple[Tensor, Te
     Returns (grid (R,R,R), bbox_min (3,), bbox_max (3,)) or None when the current mesh is empty.
     """
     with torch.no_grad():
-        mt = extract(params.points, params.s, params.c, grid, smoothing=ctx.config.smoothing)
+        mt = extract(
+            params.points, params.s, params.c, grid, smoothing=ctx.config.smoothing, subdivision=ctx.config.subdivision
+        )
         if mt.faces.shape[0] == 0:
             return None
         if ctx.surface is not None:
@@ -262,7 +265,9 @@ def fit(
     ctx, params = fit_main(vertices, faces, config, device, progress)
     with deterministic_torch():
         result = finish(params, ctx)
-    return FitResult(result, config.sh_degree, ctx.backend, ctx.seconds, ctx.history, config.smoothing)
+    return FitResult(
+        result, config.sh_degree, ctx.backend, ctx.seconds, ctx.history, config.smoothing, config.subdivision
+    )
 
 
 def fit_main(

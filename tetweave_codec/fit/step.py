@@ -21,7 +21,7 @@ from tetweave_codec.fit.surface_loss import SurfaceTarget
 from tetweave_codec.fit.targets import Targets
 from tetweave_codec.geometry.delaunay import tetrahedralize
 from tetweave_codec.geometry.marching_tets import Topology, marching_tets, marching_tets_topology
-from tetweave_codec.geometry.smoothing import TaubinOperator, taubin
+from tetweave_codec.geometry.surface_filter import FilterMap
 from tetweave_codec.render import render_maps
 
 ProgressFn = Callable[[str, int, int, dict], None]
@@ -110,31 +110,42 @@ def triangulate(points: Tensor | np.ndarray, backend: str, device: torch.device 
     return Grid(torch.from_numpy(tri.tets).to(device), torch.from_numpy(tri.hull_faces).to(device))
 
 
-def extract(points: Tensor, s: Tensor, c: Tensor, grid: Grid, cache: TopologyCache | None = None, smoothing: int = 0):
-    """The mesh exactly as the decoder extracts it (hull caps included, `smoothing` Taubin steps), differentiable.
+def extract(
+    points: Tensor,
+    s: Tensor,
+    c: Tensor,
+    grid: Grid,
+    cache: TopologyCache | None = None,
+    smoothing: int = 0,
+    subdivision: int = 0,
+    with_base: bool = False,
+):
+    """The mesh exactly as the decoder extracts it (hull caps included, `smoothing` Taubin steps, then
+    `subdivision` Loop levels), differentiable. The decoder's putting back of crossing faces is left out: it
+    touches a handful of vertices, rarely, and has no gradient.
 
-    With a `cache`, the marching-tets topology of the previous call is reused when the grid and every sign of s
-    are the same (the result is identical either way)."""
+    With a `cache`, the marching-tets topology of the previous call, and the filter built for it, are reused when
+    the grid and every sign of s are the same (the result is identical either way). A subdivided mesh's
+    face_tets repeat each face's tet for its 4^L faces. with_base: return (mesh, marching tets' own mesh before
+    the filter)."""
     if cache is None:
-        return _smoothed(marching_tets(points, grid.tets, s, c, hull_faces=grid.hull), smoothing)
+        cache = TopologyCache()
     with torch.no_grad():
         inside = s.detach() < 0
         if cache.tets is not grid.tets or cache.inside is None or not torch.equal(cache.inside, inside):
             cache.tets, cache.inside = grid.tets, inside
             cache.topology = marching_tets_topology(grid.tets, inside, grid.hull)
-            cache.smoother = None
+            cache.filter = None
     mt = marching_tets(points, grid.tets, s, c, hull_faces=grid.hull, topology=cache.topology)
-    if smoothing <= 0:
-        return mt
-    if cache.smoother is None or cache.smoother.steps != smoothing:
-        cache.smoother = TaubinOperator(mt.faces, mt.vertices.shape[0], smoothing)
-    return mt._replace(vertices=cache.smoother(mt.vertices))
-
-
-def _smoothed(mt, steps: int):
-    """mt with its vertices after `steps` Taubin steps (the decoder's smoothing; its restoring of crossing faces
-    is left to the decoder: it touches a handful of vertices and has no gradient)."""
-    return mt if steps <= 0 else mt._replace(vertices=taubin(mt.vertices, mt.faces, steps))
+    out = mt
+    if (smoothing > 0 or subdivision > 0) and mt.faces.shape[0] > 0:
+        f = cache.filter
+        if f is None or (f.smoothing, f.subdivision) != (smoothing, subdivision):
+            f = cache.filter = FilterMap(mt.faces, mt.vertices.shape[0], smoothing, subdivision)
+        out = mt._replace(vertices=f(mt.vertices))
+        if subdivision > 0:
+            out = out._replace(faces=f.faces_out, face_tets=mt.face_tets.repeat_interleave(4**subdivision))
+    return (out, mt) if with_base else out
 
 
 @dataclass
@@ -144,7 +155,7 @@ class TopologyCache:
     tets: Tensor | None = None
     inside: Tensor | None = None
     topology: Topology | None = None
-    smoother: TaubinOperator | None = None  # the smoothing of the topology's faces, built on first use
+    filter: FilterMap | None = None  # the decoder's filter of the topology's faces, built on first use
 
 
 def regularized_loss(
@@ -165,7 +176,8 @@ def regularized_loss(
     factor m instead of m times (saves ~90 ms per iteration at 16K points).
     """
     weights = ctx.config.weights
-    mt = extract(points, s, c, grid, ctx.topology, ctx.config.smoothing)
+    subdivided = ctx.config.subdivision > 0
+    mt, base = extract(points, s, c, grid, ctx.topology, ctx.config.smoothing, ctx.config.subdivision, True)
     parts: dict[str, float] = {}
     total = losses.sign_loss(s, mt.edges) * weights.sign
     parts["sign"] = float(total.detach())
@@ -177,12 +189,16 @@ def regularized_loss(
             total = total + recon
             parts.update(recon_parts)
         if ctx.surface is not None and weights.surface > 0:
-            surface = ctx.surface.loss(mt.vertices, mt.faces, ctx.generator)
+            # a subdivided mesh is drawn from as densely as its control mesh: 4^L times the samples would cost
+            # 4^L times the queries for a surface that is smoother, not more detailed
+            surface = ctx.surface.loss(mt.vertices, mt.faces, ctx.generator, min_samples=base.vertices.shape[0])
             total = total + weights.surface * surface.chamfer + weights.surface_normals * surface.normals
             parts["surface"] = float(surface.chamfer.detach())
             parts["surface_normals"] = float(surface.normals.detach())
         if with_grid_terms:
-            fair = losses.fairness_loss(mt.vertices, mt.faces) * weights.fairness
+            # the fairness of marching tets' own triangles (a subdivided mesh's are fair by construction)
+            fair_mesh = base if subdivided else mt
+            fair = losses.fairness_loss(fair_mesh.vertices, fair_mesh.faces) * weights.fairness
             total = total + fair
             parts["fairness"] = float(fair.detach())
     if with_grid_terms and odt_factor > 0:

@@ -89,13 +89,57 @@ static int coplanar_overlap(const double *a[3], const double *b[3], const double
     return 0;
 }
 
-/* Segment pq crosses triangle abc, given sp = orient(a, b, c, p) and sq = orient(a, b, c, q) (the reference's
- * _segment_crosses_triangle; the other orientations are only needed when p and q lie on opposite sides). */
-static inline int seg_cross_given(double sp, double sq, const double *p, const double *q, const double *a,
-                                  const double *b, const double *c) {
+/* The pair's scale (pair_scale below), computed on first use: most pairs never need it. */
+typedef struct {
+    const double **a, **b;
+    double scale;
+    int have;
+} PairScale;
+
+static double pair_scale(const double *a[3], const double *b[3]);
+
+static inline double scale_of(PairScale *ps) {
+    if (!ps->have) {
+        ps->scale = pair_scale(ps->a, ps->b);
+        ps->have = 1;
+    }
+    return ps->scale;
+}
+
+/* Segment pq crosses triangle abc (normal length nlen), given sp = orient(a, b, c, p) and sq = orient(a, b, c, q)
+ * (the reference's _segment_crosses_triangle: opposite sides by more than 1e-12 nlen scale; the other
+ * orientations are only needed then). */
+static inline int seg_cross_given(double sp, double sq, double nlen, PairScale *ps, const double *p,
+                                  const double *q, const double *a, const double *b, const double *c) {
     if (!(sp * sq < 0)) return 0;
+    double tol = 1e-12 * nlen * scale_of(ps);
+    if (!(fabs(sp) > tol && fabs(sq) > tol)) return 0;
     double s1 = orient(p, q, a, b), s2 = orient(p, q, b, c), s3 = orient(p, q, c, a);
     return (s1 > 0 && s2 > 0 && s3 > 0) || (s1 < 0 && s2 < 0 && s3 < 0);
+}
+
+/* The largest span of the two boxes (min x, y, z, max x, y, z) on one axis: every |coordinate difference| of the
+ * pair is at most that (rounding is monotone), so a bound from it is at least the reference's. */
+static inline double pair_span(const double *box_a, const double *box_b) {
+    double span = 0;
+    for (int k = 0; k < 3; k++) {
+        double hi = box_a[3 + k] > box_b[3 + k] ? box_a[3 + k] : box_b[3 + k];
+        double lo = box_a[k] < box_b[k] ? box_a[k] : box_b[k];
+        if (hi - lo > span) span = hi - lo;
+    }
+    return span;
+}
+
+/* The reference's scale of a pair: the largest |coordinate difference| of the six vertices from b0. */
+static double pair_scale(const double *a[3], const double *b[3]) {
+    double scale_a = 0, scale_b = 0;
+    for (int i = 0; i < 3; i++)
+        for (int k = 0; k < 3; k++) {
+            double x = fabs(a[i][k] - b[0][k]), y = fabs(b[i][k] - b[0][k]);
+            if (x > scale_a) scale_a = x;
+            if (y > scale_b) scale_b = y;
+        }
+    return scale_a > scale_b ? scale_a : scale_b;
 }
 
 /* The reference's _pairs_intersect for one pair of faces fa < fb (their vertex indices; ta, tb their corners, 9
@@ -104,7 +148,7 @@ static inline int seg_cross_given(double sp, double sq, const double *p, const d
  * order as the reference's. */
 static int pair_intersects(const double *ta, const double *tb, const int64_t *fa, const int64_t *fb,
                            const double *na, const double *nb, const double *box_a, const double *box_b,
-                           double nlen_b) {
+                           double nlen_a, double nlen_b) {
     /* bit j of m[i]: vertex i of a is vertex j of b (branch-free: most pairs are neighbours in a fan) */
     int m0 = (fa[0] == fb[0]) | (fa[0] == fb[1]) << 1 | (fa[0] == fb[2]) << 2;
     int m1 = (fa[1] == fb[0]) | (fa[1] == fb[1]) << 1 | (fa[1] == fb[2]) << 2;
@@ -117,12 +161,14 @@ static int pair_intersects(const double *ta, const double *tb, const int64_t *fa
         a[i] = ta + 3 * i;
         b[i] = tb + 3 * i;
     }
+    PairScale ps = {a, b, 0.0, 0};
     double d[3], oa[3], ob[3];
     if (n_shared == 1) {
         /* only the two other vertices of each face matter: orient them lazily, each side on its own */
-        int pa[2], pb[2], ka = 0, kb = 0;
+        int pa[2], pb[2], ka = 0, kb = 0, sa = 0;
         for (int i = 0; i < 3; i++) {
             if (!shared_a[i]) pa[ka++] = i;
+            else sa = i;
             if (!(used >> i & 1)) pb[kb++] = i;
         }
         if (ka != 2 || kb != 2) return 0; /* a repeated index in one face: never a valid face */
@@ -130,44 +176,40 @@ static int pair_intersects(const double *ta, const double *tb, const int64_t *fa
             sub3(a[pa[i]], b[0], d);
             oa[i] = dot3(nb, d); /* orient(b0, b1, b2, a_pa[i]) */
         }
-        if (seg_cross_given(oa[0], oa[1], a[pa[0]], a[pa[1]], b[0], b[1], b[2])) return 1;
+        /* coplanar pairs: the overlap in the plane decides (the segment tests would decide on rounding noise) */
+        if (fabs(oa[0]) <= 1e-12 * nlen_b * pair_span(box_a, box_b)) {
+            sub3(a[sa], b[0], d);
+            oa[2] = dot3(nb, d);
+            double bound = 1e-12 * nlen_b * scale_of(&ps);
+            if (fabs(oa[0]) <= bound && fabs(oa[1]) <= bound && fabs(oa[2]) <= bound)
+                return coplanar_overlap(a, b, nb);
+        }
+        if (seg_cross_given(oa[0], oa[1], nlen_b, &ps, a[pa[0]], a[pa[1]], b[0], b[1], b[2])) return 1;
         for (int i = 0; i < 2; i++) {
             sub3(b[pb[i]], a[0], d);
             ob[i] = dot3(na, d); /* orient(a0, a1, a2, b_pb[i]) */
         }
-        return seg_cross_given(ob[0], ob[1], b[pb[0]], b[pb[1]], a[0], a[1], a[2]);
+        return seg_cross_given(ob[0], ob[1], nlen_a, &ps, b[pb[0]], b[pb[1]], a[0], a[1], a[2]);
     }
     for (int i = 0; i < 3; i++) {
         sub3(a[i], b[0], d);
         oa[i] = dot3(nb, d); /* orient(b0, b1, b2, a_i) */
+    }
+    /* coplanar pairs: the overlap in the plane decides (cheap exact rejection first: pair_span is at least the
+     * reference's scale) */
+    if (fabs(oa[0]) <= 1e-12 * nlen_b * pair_span(box_a, box_b)) {
+        double bound = 1e-12 * nlen_b * scale_of(&ps);
+        if (fabs(oa[0]) <= bound && fabs(oa[1]) <= bound && fabs(oa[2]) <= bound) return coplanar_overlap(a, b, nb);
+    }
+    for (int i = 0; i < 3; i++) {
         sub3(b[i], a[0], d);
         ob[i] = dot3(na, d); /* orient(a0, a1, a2, b_i) */
     }
     for (int i = 0; i < 3; i++)
-        if (seg_cross_given(oa[i], oa[(i + 1) % 3], a[i], a[(i + 1) % 3], b[0], b[1], b[2])) return 1;
+        if (seg_cross_given(oa[i], oa[(i + 1) % 3], nlen_b, &ps, a[i], a[(i + 1) % 3], b[0], b[1], b[2])) return 1;
     for (int i = 0; i < 3; i++)
-        if (seg_cross_given(ob[i], ob[(i + 1) % 3], b[i], b[(i + 1) % 3], a[0], a[1], a[2])) return 1;
-    /* Cheap exact rejection of the coplanar case: every |coordinate difference| is at most the span of the two
-     * boxes on its axis (rounding is monotone), so this bound is at least the reference's. */
-    double span = 0;
-    for (int k = 0; k < 3; k++) {
-        double hi = box_a[3 + k] > box_b[3 + k] ? box_a[3 + k] : box_b[3 + k];
-        double lo = box_a[k] < box_b[k] ? box_a[k] : box_b[k];
-        if (hi - lo > span) span = hi - lo;
-    }
-    if (fabs(oa[0]) > 1e-12 * nlen_b * span) return 0;
-    double scale_a = 0, scale_b = 0;
-    for (int i = 0; i < 3; i++)
-        for (int k = 0; k < 3; k++) {
-            double x = fabs(a[i][k] - b[0][k]), y = fabs(b[i][k] - b[0][k]);
-            if (x > scale_a) scale_a = x;
-            if (y > scale_b) scale_b = y;
-        }
-    double scale = scale_a > scale_b ? scale_a : scale_b;
-    double bound = 1e-12 * nlen_b * scale;
-    for (int i = 0; i < 3; i++)
-        if (!(fabs(oa[i]) <= bound)) return 0;
-    return coplanar_overlap(a, b, nb);
+        if (seg_cross_given(ob[i], ob[(i + 1) % 3], nlen_a, &ps, b[i], b[(i + 1) % 3], a[0], a[1], a[2])) return 1;
+    return 0;
 }
 
 static int get_buffer(PyObject *obj, Py_buffer *view, Py_ssize_t itemsize, Py_ssize_t count, const char *name) {
@@ -431,7 +473,7 @@ static PyObject *faces_flags(PyObject *self, PyObject *args) {
                 const int64_t *iq = lids + 4 * (j - s);
                 int64_t fa = ip[0], fz = iq[0];
                 if (!only[fa] && !only[fz]) continue;
-                if (pair_intersects(bp + 6, bq + 6, ip + 1, iq + 1, bp + 15, bq + 15, bp, bq, bq[18])) {
+                if (pair_intersects(bp + 6, bq + 6, ip + 1, iq + 1, bp + 15, bq + 15, bp, bq, bp[18], bq[18])) {
                     flags[fa] = 1;
                     flags[fz] = 1;
                 }

@@ -1,12 +1,14 @@
 """Self-intersections of a mesh: the decoder's check after smoothing (geometry.smoothing) and a metric.
 
 - ``self_intersecting_faces``: the faces that properly intersect another face. Candidate pairs come from a
-  uniform grid over face bounding boxes; a pair sharing no vertex intersects when an edge of one crosses the
-  interior of the other (strict orientation tests in float64), or, if the two are coplanar, when their
-  interiors overlap in the plane; a pair sharing exactly one vertex intersects when the edge opposite the
-  shared vertex of one crosses the interior of the other (a fold around the vertex). Pairs sharing an edge
-  are not tested (their only possible intersection is an exactly coplanar fold), and touching without
-  crossing is not counted.
+  uniform grid over face bounding boxes. A pair sharing no vertex intersects, if the two are coplanar, when
+  their interiors overlap in the plane, else when an edge of one crosses the interior of the other (strict
+  orientation tests in float64, with both ends of the edge farther than 1e-12 of the pair's size from the
+  other's plane: on coplanar pairs and on edges lying in a plane the signs would be rounding noise). A pair
+  sharing exactly one vertex intersects, if coplanar, when their interiors overlap in the plane, else when the
+  edge opposite the shared vertex of one crosses the interior of the other (a fold around the vertex). Pairs
+  sharing an edge are not tested (their only possible intersection is an exactly coplanar fold), and touching
+  without crossing is not counted.
 
 A compiled fast path (geometry/_intersect_native.c, built by setup.py when a C compiler is there) makes the same
 grid decisions and evaluates the same predicate with every binary64 operation in the same order (the arithmetic
@@ -115,12 +117,19 @@ def _orient(a: np.ndarray, b: np.ndarray, c: np.ndarray, d: np.ndarray) -> np.nd
     return _dot(_cross(b - a, c - a), d - a)
 
 
-def _segment_crosses_triangle(p, q, a, b, c) -> np.ndarray:
-    """Segment pq properly crosses the interior of triangle abc (strict signs; touching is not crossing)."""
-    sp, sq = _orient(a, b, c, p), _orient(a, b, c, q)
+def _segment_crosses_triangle(p, q, a, b, c, scale) -> np.ndarray:
+    """Segment pq properly crosses the interior of triangle abc (strict signs; touching is not crossing).
+
+    p and q must lie on opposite sides of abc's plane by more than 1e-12 |n| scale (n = (b - a) x (c - a),
+    scale (P,) the pair's size): an end within that of the plane touches it. Why: a segment lying in the plane
+    (a subdivided surface's flat reference has many, through its edge midpoints) has orientations that are
+    rounding noise, whose signs must not decide."""
+    n = _cross(b - a, c - a)
+    sp, sq = _dot(n, p - a), _dot(n, q - a)
+    tol = 1e-12 * np.sqrt(_dot(n, n)) * scale
     s1, s2, s3 = _orient(p, q, a, b), _orient(p, q, b, c), _orient(p, q, c, a)
     same = ((s1 > 0) & (s2 > 0) & (s3 > 0)) | ((s1 < 0) & (s2 < 0) & (s3 < 0))
-    return (sp * sq < 0) & same
+    return (sp * sq < 0) & (np.abs(sp) > tol) & (np.abs(sq) > tol) & same
 
 
 def _coplanar_overlap(t1: np.ndarray, t2: np.ndarray, normal: np.ndarray) -> np.ndarray:
@@ -150,35 +159,57 @@ def _coplanar_overlap(t1: np.ndarray, t2: np.ndarray, normal: np.ndarray) -> np.
     return hit
 
 
+def _pair_scale(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(P,) the largest |coordinate difference| of the six vertices of triangles a, b (P,3,3) from b0."""
+    return np.maximum(np.abs(a - b[:, :1]).max(axis=(1, 2)), np.abs(b - b[:, :1]).max(axis=(1, 2)))
+
+
+def _coplanar(a: np.ndarray, b: np.ndarray, n: np.ndarray, scale: np.ndarray) -> np.ndarray:
+    """Triangles a (P,3,3) lie in the plane of triangles b (P,3,3) with normals n (P,3) = (b1 - b0) x (b2 - b0),
+    up to 1e-12 of |n| times `_pair_scale(a, b)`."""
+    bound = 1e-12 * np.sqrt(_dot(n, n)) * scale
+    coplanar = np.ones(len(a), dtype=bool)
+    for k in range(3):
+        coplanar &= np.abs(_dot(a[:, k] - b[:, 0], n)) <= bound
+    return coplanar
+
+
 def _pairs_intersect(t1: np.ndarray, t2: np.ndarray, shared_one: np.ndarray, opp1, opp2) -> np.ndarray:
     """Intersection test of triangle pairs t1, t2 (P,3,3); see the module docstring."""
     hit = np.zeros(len(t1), dtype=bool)
     disjoint = ~shared_one
     if disjoint.any():
         a, b = t1[disjoint], t2[disjoint]
+        scale = _pair_scale(a, b)
         h = np.zeros(len(a), dtype=bool)
         for x, y in ((a, b), (b, a)):
             for i in range(3):
-                h |= _segment_crosses_triangle(x[:, i], x[:, (i + 1) % 3], y[:, 0], y[:, 1], y[:, 2])
-        # coplanar pairs: no edge can properly cross, test the overlap in the plane
+                h |= _segment_crosses_triangle(x[:, i], x[:, (i + 1) % 3], y[:, 0], y[:, 1], y[:, 2], scale)
+        # coplanar pairs: no edge can properly cross (the segment tests above decide on rounding noise there),
+        # the overlap in the plane decides
         n = _cross(b[:, 1] - b[:, 0], b[:, 2] - b[:, 0])
-        scale = np.maximum(np.abs(a - b[:, :1]).max(axis=(1, 2)), np.abs(b - b[:, :1]).max(axis=(1, 2)))
-        bound = 1e-12 * np.sqrt(_dot(n, n)) * scale
-        coplanar = np.ones(len(a), dtype=bool)
-        for k in range(3):
-            coplanar &= np.abs(_dot(a[:, k] - b[:, 0], n)) <= bound
+        coplanar = _coplanar(a, b, n, scale)
+        h[coplanar] = False
         if coplanar.any():
-            h[coplanar] |= _coplanar_overlap(a[coplanar], b[coplanar], n[coplanar])
+            h[coplanar] = _coplanar_overlap(a[coplanar], b[coplanar], n[coplanar])
         hit[disjoint] = h
     if shared_one.any():
         idx = np.nonzero(shared_one)[0]
         a, b = t1[idx], t2[idx]
         rows = np.arange(len(idx))
+        # coplanar pairs (a subdivided surface's flat reference has many): the segment tests below would decide
+        # on rounding noise, so the overlap in the plane decides (a fold around the shared vertex)
+        n = _cross(b[:, 1] - b[:, 0], b[:, 2] - b[:, 0])
+        scale = _pair_scale(a, b)
+        coplanar = _coplanar(a, b, n, scale)
         # opp* (P,2): local indices of the two vertices not shared, per triangle
         p1, q1 = a[rows, opp1[idx, 0]], a[rows, opp1[idx, 1]]
         p2, q2 = b[rows, opp2[idx, 0]], b[rows, opp2[idx, 1]]
-        h = _segment_crosses_triangle(p1, q1, b[:, 0], b[:, 1], b[:, 2])
-        h |= _segment_crosses_triangle(p2, q2, a[:, 0], a[:, 1], a[:, 2])
+        h = _segment_crosses_triangle(p1, q1, b[:, 0], b[:, 1], b[:, 2], scale)
+        h |= _segment_crosses_triangle(p2, q2, a[:, 0], a[:, 1], a[:, 2], scale)
+        h[coplanar] = False
+        if coplanar.any():
+            h[coplanar] = _coplanar_overlap(a[coplanar], b[coplanar], n[coplanar])
         hit[idx] = h
     return hit
 

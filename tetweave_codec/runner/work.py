@@ -42,8 +42,8 @@ class EncodeOptions:
 
     sh_degree: "none" or "0".."3". size: target bytes; max_error: target Chamfer distance (rate control).
     format_version: 1 or 2. position_bits / s_step / c_step: v2 quantization overrides (None = the defaults for
-    `points`). smoothing: the decoder's Taubin steps (None = the encoder's default). threads: torch CPU threads
-    (0 = torch's default). measure: compute the Chamfer distance.
+    `points`). smoothing, subdivision: the decoder's Taubin steps and Loop levels (None = the encoder's
+    default). threads: torch CPU threads (0 = torch's default). measure: compute the Chamfer distance.
     """
 
     points: int = 16384
@@ -57,6 +57,7 @@ class EncodeOptions:
     s_step: float | None = None
     c_step: float | None = None
     smoothing: int | None = None
+    subdivision: int | None = None
     device: str = "auto"
     seed: int = 0
     threads: int = 0
@@ -90,6 +91,7 @@ class EncodeOptions:
             max_error=self.max_error,
             measure=self.measure,
             smoothing=self.smoothing,
+            subdivision=self.subdivision,
         )
 
 
