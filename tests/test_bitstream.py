@@ -248,7 +248,8 @@ def test_pack_v2_rejects_bad_contents():
         dict(position_bits=5),
         dict(scale=-1.0),
         dict(s_sym=np.full(10, Q.S_SYMBOL_LIMIT), flags=2),
-        dict(flags=32),  # bits 5-7 are reserved (3-4: smoothing steps)
+        dict(flags=128),  # bit 7 is reserved (3-4: smoothing steps, 5-6: subdivision levels)
+        dict(flags=96),  # subdivision levels 3: invalid
     ]
     fields = dict(f.__dict__)
     fields.pop("sizes", None)
@@ -507,7 +508,8 @@ def test_n_above_the_format_limit_is_rejected_before_decoding():
 @pytest.mark.parametrize(
     "offset, fmt, value, message",
     [
-        (10, "<B", 32, "unknown flags"),
+        (10, "<B", 128, "unknown flags"),
+        (10, "<B", 96, "subdivision levels"),
         (11, "<b", 4, "SH degree"),
         (12, "<B", 5, "position bits"),
         (12, "<B", 17, "position bits"),

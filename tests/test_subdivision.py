@@ -18,6 +18,7 @@ from tetweave_codec.geometry.intersections import self_intersecting_faces
 from tetweave_codec.geometry.smoothing import taubin
 from tetweave_codec.geometry.subdivision import (
     level_matrix,
+    loop_and_midpoint,
     loop_level,
     loop_subdivide,
     midpoint_subdivide,
@@ -86,8 +87,12 @@ def test_midpoint_reference_is_the_surface_itself():
     np.testing.assert_array_equal(v[: len(m.vertices)], m.vertices)
     t = trimesh.Trimesh(v, f, process=False)
     assert np.isclose(t.area, m.area, rtol=1e-12) and np.isclose(t.volume, m.volume, rtol=1e-12)
-    _, f_loop = loop_subdivide(m.vertices, m.faces, 2)
+    v_loop, f_loop = loop_subdivide(m.vertices, m.faces, 2)
     np.testing.assert_array_equal(f, f_loop)
+    both = loop_and_midpoint(m.vertices, m.vertices, m.faces, 2)
+    np.testing.assert_array_equal(both[0], v_loop)
+    np.testing.assert_array_equal(both[1], v)
+    np.testing.assert_array_equal(both[2], f)
 
 
 @pytest.mark.parametrize("midpoint", [False, True])

@@ -104,29 +104,39 @@ def loop_subdivide(vertices: np.ndarray, faces: np.ndarray, levels: int) -> tupl
     Returns vertices (V + E, 3) float64 and faces (4F, 3) int64 for one level (and so on). levels 0 returns the
     input (as float64 / int64 arrays).
     """
-    v = np.asarray(vertices, dtype=np.float64)
-    f = np.asarray(faces, dtype=np.int64)
-    for _ in range(levels):
-        if len(f) == 0:
-            break
-        level = loop_level(f, len(v))
-        v = _apply_level(v, level, midpoint=False)
-        f = level.faces
-    return v, f
+    return _refine(vertices, faces, levels, midpoint=False)[:2]
 
 
 def midpoint_subdivide(vertices: np.ndarray, faces: np.ndarray, levels: int) -> tuple[np.ndarray, np.ndarray]:
     """The same refinement with edge vertices at `0.5 * (v_a + v_b)` and old vertices unmoved: the input surface
     itself, on `loop_subdivide`'s faces (the decoder's reference for crossing faces)."""
+    return _refine(vertices, faces, levels, midpoint=True)[:2]
+
+
+def loop_and_midpoint(
+    vertices: np.ndarray, reference: np.ndarray, faces: np.ndarray, levels: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`loop_subdivide(vertices, faces, levels)` and `midpoint_subdivide(reference, faces, levels)` (same faces),
+    the connectivity computed once: (vertices', reference', faces')."""
+    v, f, topology = _refine(vertices, faces, levels, midpoint=False)
+    r = np.asarray(reference, dtype=np.float64)
+    for level in topology:
+        r = _apply_level(r, level, midpoint=True)
+    return v, r, f
+
+
+def _refine(vertices, faces, levels: int, midpoint: bool) -> tuple[np.ndarray, np.ndarray, list[LoopLevel]]:
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
+    topology = []
     for _ in range(levels):
         if len(f) == 0:
             break
         level = loop_level(f, len(v))
-        v = _apply_level(v, level, midpoint=True)
+        v = _apply_level(v, level, midpoint)
         f = level.faces
-    return v, f
+        topology.append(level)
+    return v, f, topology
 
 
 def _apply_level(v: np.ndarray, level: LoopLevel, midpoint: bool) -> np.ndarray:

@@ -20,7 +20,7 @@ import numpy as np
 from tetweave_codec.errors import ContainerError
 from tetweave_codec.geometry.intersections import self_intersecting_faces
 from tetweave_codec.geometry.smoothing import TAUBIN_LAMBDA, TAUBIN_MU, mesh_edges, taubin
-from tetweave_codec.geometry.subdivision import level_matrix, loop_level, loop_subdivide, midpoint_subdivide
+from tetweave_codec.geometry.subdivision import level_matrix, loop_and_midpoint, loop_level
 
 # Self-intersection checks before the decoder gives up on the filter altogether (the unsmoothed surface of an
 # encoder's file never crosses itself; a hostile file's may, through flat tets, and then stays as it is).
@@ -60,8 +60,7 @@ def filter_surface(vertices: np.ndarray, faces: np.ndarray, smoothing: int, subd
         v = taubin(v0, f0, smoothing, edges=mesh_edges(f0, len(v0), closed=True))
     reference, f = v0, f0
     if subdivision > 0:
-        v, f = loop_subdivide(v, f0, subdivision)
-        reference, _ = midpoint_subdivide(v0, f0, subdivision)
+        v, reference, f = loop_and_midpoint(v, v0, f0, subdivision)
     out, restored, gave_up = restore_crossings(v, reference, f)
     if gave_up:
         return FilteredSurface(v0, f0, len(v0), True)
