@@ -259,14 +259,15 @@ def test_batch_decoding_works_without_torch(tmp_path):
     assert check.returncode != 0  # the blocker works
 
 
-def test_decode_of_a_smoothed_file_reports_its_smoothing(tmp_path):
-    from tetweave_codec.formats.common import FLAG_S_PREDICTED, smoothing_flags
+@pytest.mark.parametrize("levels", [0, 1])
+def test_decode_of_a_smoothed_file_reports_its_smoothing(tmp_path, levels):
+    from tetweave_codec.formats.common import FLAG_S_PREDICTED, smoothing_flags, subdivision_flags
     from tetweave_codec.formats.tw2 import pack_v2, quantize_file
 
     rng = np.random.default_rng(0)
     pts = rng.uniform(-1, 1, (1500, 3))
     s = np.linalg.norm(pts, axis=1) - 0.6
-    flags = FLAG_S_PREDICTED | smoothing_flags(2)
+    flags = FLAG_S_PREDICTED | smoothing_flags(2) | subdivision_flags(levels)
     f, _ = quantize_file(
         pts, s, None, -1, position_bits=8, s_step=1e-3, c_band_steps=[], scale=2.0, offset=OFFSET, flags=flags
     )
@@ -275,6 +276,9 @@ def test_decode_of_a_smoothed_file_reports_its_smoothing(tmp_path):
     result = run("decode", path, "-o", tmp_path / "out.ply")
     assert result.exit_code == 0, result.output
     assert "2 smoothing steps" in result.output
+    assert ("1 subdivision level" in result.output) == (levels == 1)
+    info = run("info", path)
+    assert info.exit_code == 0 and ("1 Loop subdivision level" in info.output) == (levels == 1)
     v, faces = load_mesh(tmp_path / "out.ply")
     ref_v, ref_f = decode_bytes(path.read_bytes())
     assert np.array_equal(faces, ref_f) and np.allclose(v, ref_v, rtol=0, atol=1e-5)

@@ -200,6 +200,9 @@ def test_cli_bad_mesh_inputs(tmp_path, content, needle):
         ["--quality", "ultra"],
         ["--iters", "0"],
         ["--device", "tpu"],
+        ["--subdivision", "3"],
+        ["--smoothing", "4"],
+        ["--subdivision", "1", "--format-version", "1", "--smoothing", "0"],
     ],
 )
 def test_cli_nonsense_options(tmp_path, args):

@@ -62,6 +62,10 @@ PRIOR_ERROR_POINTS = 3.5
 # N^-0.8 there) and the bunny's holes made its 1e-3 fit miss; x 0.72, and the first fit sized with half of F
 # (FIRST_FIT_HOLE_SHARE; benchmarks/results/rate_control.md).
 PRIOR_PROBE_VERTICES = 1000
+# A subdivided fit (fit.config.FitConfig.subdivision > 0) is smooth between its points: its own error (the
+# PRIOR_BASE part) is lower, its detail part the same. Chamfer at equal points, one Loop level against none:
+# spot 0.67-0.81, stanford-bunny 0.89-0.95, igea 0.90-1.02 (benchmarks/results/subdivision.md).
+SUBDIVIDED_BASE_FACTOR = 0.8
 PRIOR_PROBE_SAMPLES = 20_000  # Chamfer samples of the probe (its resolution ~1e-5 is far below the targets)
 PRIOR_BASE = 1.22
 PRIOR_DETAIL_KNEE = 1.0
@@ -288,8 +292,9 @@ def prior_error_points(job) -> float:
     from tetweave_codec.metrics import chamfer_distance
 
     v, f = job.normalized, job.f
+    base = PRIOR_BASE * (SUBDIVIDED_BASE_FACTOR if getattr(job, "subdivision", 0) else 1.0)
     if len(v) <= 2 * PRIOR_PROBE_VERTICES:  # already coarse: no detail beyond what a fit resolves
-        return PRIOR_BASE
+        return base
     reduction = 1.0 - 2.0 * PRIOR_PROBE_VERTICES / len(f)
     dv, df = fast_simplification.simplify(
         np.ascontiguousarray(v, dtype=np.float32), np.ascontiguousarray(f, dtype=np.int32), reduction
@@ -298,7 +303,7 @@ def prior_error_points(job) -> float:
         return PRIOR_ERROR_POINTS
     cd = chamfer_distance(v, f, dv, df, n_samples=PRIOR_PROBE_SAMPLES, seed=job.seed, normalize=False)
     detail = len(dv) * cd
-    return PRIOR_BASE + PRIOR_DETAIL_SLOPE * max(0.0, detail - PRIOR_DETAIL_KNEE)
+    return base + PRIOR_DETAIL_SLOPE * max(0.0, detail - PRIOR_DETAIL_KNEE)
 
 
 def hole_cap_error(vertices: np.ndarray, faces: np.ndarray) -> float:

@@ -108,7 +108,8 @@ class FilterMap:
     neighbour-mean matrix, then one per Loop level) applied forward and, transposed, backward through a custom
     autograd function: 4.6 ms against 24-28 ms for torch index_add for one Taubin step of a 40K-vertex mesh
     (forward and backward, one thread). Same values as the decoder's up to float rounding. On other devices the
-    factors are torch sparse matrices.
+    factors are (row, column, weight) tensors applied with index_add, as the fit's other mesh operators are
+    (deterministic under the fit's deterministic mode).
     """
 
     def __init__(self, faces: Any, num_vertices: int, smoothing: int, subdivision: int):
@@ -128,10 +129,7 @@ class FilterMap:
             self.faces_out = torch.from_numpy(self._faces_np).to(vertices.device)
         if vertices.device.type == "cpu":
             return _apply_csr().apply(vertices, factors)
-        v = vertices
-        for m in factors:
-            v = torch.sparse.mm(m, v)
-        return v
+        return _apply_indexed(vertices, factors)
 
     def _for(self, dtype, device):
         key = (dtype, device)
@@ -142,22 +140,36 @@ class FilterMap:
                 cast = [m.astype(np_dtype).tocsr() for m in mats]
                 self._by_kind[key] = (cast, [m.T.tocsr() for m in cast])
             else:
-                self._by_kind[key] = _torch_sparse(mats, dtype, device)
+                self._by_kind[key] = _indexed(mats, dtype, device)
         return self._by_kind[key]
 
 
-def _torch_sparse(mats: list, dtype, device) -> list:
-    """scipy matrices as torch sparse COO tensors of `dtype` on `device` (torch.sparse.mm is differentiable in
-    its dense argument)."""
+def _indexed(mats: list, dtype, device) -> list:
+    """scipy matrices as (rows, row indices, column indices, weights) tensors of `dtype` on `device`."""
     import torch
 
     out = []
     for m in mats:
         coo = m.tocoo()
-        idx = torch.from_numpy(np.stack([coo.row, coo.col]).astype(np.int64))
-        sparse = torch.sparse_coo_tensor(idx, torch.from_numpy(coo.data), coo.shape, check_invariants=False)
-        out.append(sparse.to(device, dtype).coalesce())
+        out.append(
+            (
+                m.shape[0],
+                torch.from_numpy(coo.row.astype(np.int64)).to(device),
+                torch.from_numpy(coo.col.astype(np.int64)).to(device),
+                torch.from_numpy(coo.data).to(device, dtype),
+            )
+        )
     return out
+
+
+def _apply_indexed(vertices: Any, factors: list) -> Any:
+    """x -> M_k ... M_1 x with each M as (rows, row, col, weight): differentiable torch on any device."""
+    import torch
+
+    v = vertices
+    for rows, row, col, weight in factors:
+        v = torch.zeros((rows, v.shape[1]), dtype=v.dtype, device=v.device).index_add(0, row, weight[:, None] * v[col])
+    return v
 
 
 def _factors(faces: Any, n: int, smoothing: int, subdivision: int):
