@@ -132,7 +132,7 @@ def test_the_fits_map_off_the_cpu_is_the_same_map():
     checked here on CPU tensors."""
     m = trimesh.creation.icosphere(1)
     op = FilterMap(np.asarray(m.faces), len(m.vertices), 1, 1)
-    factors = surface_filter._indexed(op._factors_f64[0], torch.float64, torch.device("cpu"))
+    factors = surface_filter._indexed(op.matrices, torch.float64, torch.device("cpu"))
     x = torch.tensor(m.vertices, dtype=torch.float64, requires_grad=True)
     y = surface_filter._apply_indexed(x, factors)
     np.testing.assert_allclose(y.detach().numpy(), op(x).detach().numpy(), rtol=0, atol=1e-13)

@@ -29,9 +29,9 @@ from tetweave_codec.fit.config import (
 from tetweave_codec.fit.finish import FinishResult, finish
 from tetweave_codec.fit.loop import FitResult, deterministic_torch
 from tetweave_codec.fit.step import FitContext, Params, ProgressFn
+from tetweave_codec.formats.common import MAX_SUBDIVISION
 from tetweave_codec.geometry.sh import check_degree
 from tetweave_codec.geometry.smoothing import MAX_STEPS as MAX_SMOOTHING_STEPS
-from tetweave_codec.geometry.subdivision import MAX_LEVELS as MAX_SUBDIVISION
 from tetweave_codec.geometry.triangles import face_areas
 
 DEFAULT_POINTS = 16384

@@ -22,7 +22,7 @@ one level of vertices (V,3) and faces (F,3):
 Subdivision moves vertices off the piecewise-flat surface, so in rare cases it may touch itself where it was thin;
 the decoder then puts the vertices of crossing faces back to the *midpoint* subdivision of the unsmoothed surface
 (same faces, edge vertices at `0.5 * (v_a + v_b)`, old vertices unmoved: geometrically the unsmoothed surface
-itself; geometry.smoothing.restore_crossings). Connectivity is a fixed refinement of a closed 2-manifold: it stays
+itself; geometry.surface_filter.restore_crossings). Connectivity is a fixed refinement of a closed 2-manifold: it stays
 one.
 """
 
@@ -35,15 +35,13 @@ import numpy as np
 EDGE_NEAR = 0.375  # weight of an edge's two ends in its new vertex
 EDGE_FAR = 0.125  # weight of the two opposite corners
 BETA_VALENCE_3 = 0.1875  # Warren's beta for three neighbours; 3 / (8k) above
-MAX_LEVELS = 2  # the header's bits 5-6 hold 0-2 (3 is rejected)
 
 
 class LoopLevel(NamedTuple):
     """The connectivity of one Loop level of a mesh with `num_vertices` vertices (numpy int64).
 
     edges (E,2): a < b, ascending; opposite (E,2): the third corners of the edge's two faces, -1 -1 when the edge
-    does not have exactly two; faces (4F,3): the refined faces (vertex V + e is edge e's new vertex);
-    neighbours (2E',2): directed (i, j) pairs of distinct neighbours, sorted by (i, j) (E' distinct edges).
+    does not have exactly two; faces (4F,3): the refined faces (vertex V + e is edge e's new vertex).
     """
 
     num_vertices: int

@@ -118,8 +118,8 @@ class FilterMap:
     def __init__(self, faces: Any, num_vertices: int, smoothing: int, subdivision: int):
         self.smoothing, self.subdivision = int(smoothing), int(subdivision)
         self.num_vertices = int(num_vertices)
-        self._factors_f64 = _factors(faces, self.num_vertices, self.smoothing, self.subdivision)
-        self._faces_np = self._factors_f64[1]
+        # the factors in the order they apply (scipy CSR, float64) and the filtered faces (numpy int64)
+        self.matrices, self._faces_np = _factors(faces, self.num_vertices, self.smoothing, self.subdivision)
         self._by_kind: dict = {}
         self.faces_out = None  # set on first call, on the input's device
 
@@ -137,7 +137,7 @@ class FilterMap:
     def _for(self, dtype, device):
         key = (dtype, device)
         if key not in self._by_kind:
-            mats = self._factors_f64[0]
+            mats = self.matrices
             if device.type == "cpu":
                 np_dtype = np.dtype(str(dtype).replace("torch.", ""))
                 cast = [m.astype(np_dtype).tocsr() for m in mats]
