@@ -9,7 +9,8 @@ bytes, not on how long the fit ran). `--no-encode` times only the files already 
 Per file, median of `--repeats` runs after one warm-up, with the clock of `--clock`:
 
 * the API stages of `decode_detailed`: unpack (range decoding, the octree and the s prediction), Delaunay,
-  marching tets, smoothing (its Taubin steps and self-intersection check; 0 for unsmoothed files), and their
+  marching tets, smoothing (the decoder's filter: Taubin steps, Loop subdivision and the self-intersection check;
+  0 for unfiltered files), and their
   total (input-frame transform included);
 * "s pred": the part of unpack spent in the s prediction (`predict.reconstruct`: neighbour search, weights and
   the sequential pass), timed on its own;
