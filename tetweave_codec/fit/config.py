@@ -194,8 +194,10 @@ class FitConfig:
 # smoothing, 1 step: spot 0.82-0.87, stanford-bunny 0.94-0.99, igea 0.96-1.01, fandisk 0.95-1.06 (16 cases,
 # median 0.96); 2 steps helped spot more (0.78) but cost igea 11 % and fandisk 5 %.
 DEFAULT_SMOOTHING = 1
-# Loop levels of `tetweave encode` after the smoothing (same exception). Measured in
-# benchmarks/results/subdivision.md.
+# Loop levels of `tetweave encode` after the smoothing (same exception). Measured with benchmarks/fit_ab.py
+# (benchmarks/results/subdivision.md): bytes x Chamfer against the smoothing alone, one level: spot 0.66-0.82,
+# stanford-bunny 0.89-0.95, igea 0.91-0.98 (9 cases, median 0.90) for 1.2-1.8x the CPU time; two levels gained
+# 0.4-3 % more for 2-3x the time again.
 DEFAULT_SUBDIVISION = 1
 
 # The presets are sized for ITERATION_POINTS points; smaller fits run up to MAX_ITERATION_SCALE times more
