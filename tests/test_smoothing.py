@@ -211,10 +211,10 @@ def test_encoder_refuses_bad_smoothing():
 
 
 def test_default_filter_is_off_for_cad_parts_only():
-    from tetweave_codec.encoder import default_smoothing
+    from tetweave_codec.encoder import default_filter
     from tetweave_codec.fit.config import DEFAULT_SMOOTHING, DEFAULT_SUBDIVISION
 
     cube = manifold3d.Manifold.cube([2, 1, 1], True).to_mesh()
-    assert default_smoothing(np.asarray(cube.vert_properties)[:, :3] * 50, np.asarray(cube.tri_verts)) == (0, 0)
+    assert default_filter(np.asarray(cube.vert_properties)[:, :3] * 50, np.asarray(cube.tri_verts)) == (0, 0)
     ball = trimesh.creation.icosphere(3)
-    assert default_smoothing(ball.vertices * 1e-3, ball.faces) == (DEFAULT_SMOOTHING, DEFAULT_SUBDIVISION) == (1, 1)
+    assert default_filter(ball.vertices * 1e-3, ball.faces) == (DEFAULT_SMOOTHING, DEFAULT_SUBDIVISION) == (1, 1)

@@ -114,9 +114,9 @@ def encode(
     max_error: rate control, the decoded mesh's Chamfer distance to the input (normalized frame, the summary's
         metric) is at most `max_error`, at the smallest size rate control finds.
     smoothing: Taubin steps 0-3 the decoder applies to the surface (the fit optimizes the smoothed one); None =
-        `default_smoothing` for container version 2, 0 for version 1 (which cannot store it).
+        `default_filter` for container version 2, 0 for version 1 (which cannot store it).
     subdivision: Loop levels 0-2 the decoder applies after the smoothing (the fit optimizes the subdivided
-        surface); None = `default_smoothing`'s choice for container version 2, 0 for version 1.
+        surface); None = `default_filter`'s choice for container version 2, 0 for version 1.
     Deterministic: the same input, options, seed, device and thread count give the same bytes.
     """
     v, f = _validate(vertices, faces)
@@ -141,7 +141,7 @@ def encode(
     if subdivision and container_version != 2:
         raise InputError("subdivision needs container version 2")
     if smoothing is None or subdivision is None:
-        chosen = (0, 0) if container_version != 2 else default_smoothing(v, f)
+        chosen = (0, 0) if container_version != 2 else default_filter(v, f)
         smoothing = chosen[0] if smoothing is None else smoothing
         subdivision = chosen[1] if subdivision is None else subdivision
     job = Job(
@@ -176,7 +176,7 @@ def encode(
     return job.result(fin, ctx, points, measure=measure)
 
 
-def default_smoothing(vertices: np.ndarray, faces: np.ndarray) -> tuple[int, int]:
+def default_filter(vertices: np.ndarray, faces: np.ndarray) -> tuple[int, int]:
     """The decoder filter `encode` picks for a mesh, (Taubin steps, Loop levels): (DEFAULT_SMOOTHING,
     DEFAULT_SUBDIVISION), none when the input has sharp creases (`fit.features.detect_features(...).found`: CAD
     parts). Why: both round every crease the fit reproduces; on CSG parts smoothing doubled the edge Chamfer
