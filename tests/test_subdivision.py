@@ -241,3 +241,37 @@ def test_encoder_refuses_bad_subdivision():
         encode(m.vertices, m.faces, points=128, subdivision=3)
     with pytest.raises(InputError, match="version 2"):
         encode(m.vertices, m.faces, points=128, subdivision=1, container_version=1, smoothing=0)
+
+
+def test_encoder_keeps_the_smoothing_alone_when_the_decoder_drops_the_subdivided_filter(monkeypatch):
+    """A decoder whose crossing check never settles on subdivided surfaces (simulated) returns the unfiltered
+    surface; the encoder then keeps whichever of that and the same points with the subdivision bits cleared (the
+    smoothing alone) decodes closer to the input, and reports exactly what its file decodes to."""
+    from tetweave_codec import decoder
+    from tetweave_codec.encoder import SUMMARY_CHAMFER_SAMPLES, encode
+    from tetweave_codec.metrics import chamfer_distance
+
+    real = decoder.filter_surface
+
+    def never_settles(vertices, faces, smoothing, subdivision):
+        if subdivision:
+            v = np.asarray(vertices, np.float64)
+            return surface_filter.FilteredSurface(v, np.asarray(faces, np.int64), len(v), True)
+        return real(vertices, faces, smoothing, subdivision)
+
+    monkeypatch.setattr(decoder, "filter_surface", never_settles)
+    torch.set_num_threads(1)
+    m = trimesh.creation.icosphere(3)
+    r = encode(m.vertices, m.faces, points=512, quality="fast", iters=40, device="cpu", smoothing=1, subdivision=1)
+    d = decode_detailed(r.data)
+    np.testing.assert_array_equal(d.vertices, r.vertices)
+    np.testing.assert_array_equal(d.faces, r.faces)
+    c = d.container
+
+    def error(smoothing):
+        v, f = decoder.mesh_from_points(c.points, c.s, c.c, c.sh_degree, d.backend, smoothing)
+        v = v * c.scale + c.offset
+        return chamfer_distance(m.vertices, m.faces, v, f, n_samples=SUMMARY_CHAMFER_SAMPLES, seed=0)
+
+    assert r.stats["chamfer"] == pytest.approx(min(error(0), error(1)), rel=1e-12)
+    assert c.smoothing == 1 and c.subdivision == (0 if error(1) < error(0) else 1)

@@ -258,6 +258,30 @@ class Job:
             self.offset,
         )
 
+    def _kept_filter(self, data: bytes, chamfer: float | None) -> tuple[bytes, tuple[np.ndarray, np.ndarray], float]:
+        """(bytes, decoded mesh, Chamfer or None) of the file to keep. When the decoder had to drop a subdivided
+        file's whole filter (its crossing check did not settle: the result is the unsmoothed, unsubdivided
+        surface of a fit made for the subdivided one), the same points with the subdivision bits cleared (the
+        smoothing alone, with its own check) are kept instead if they decode closer to the input. Same bytes."""
+        from dataclasses import replace
+
+        from tetweave_codec.decoder import decode_detailed
+        from tetweave_codec.formats.common import FLAG_SUBDIVISION
+        from tetweave_codec.formats.tw import pack_v2, unpack
+
+        full = decode_detailed(data)
+        mesh = (full.vertices, full.faces)
+        if not full.container.subdivision or not len(full.faces) or full.restored != len(full.vertices):
+            return data, mesh, chamfer
+        tw = unpack(data)
+        alt = pack_v2(replace(tw, flags=tw.flags & ~FLAG_SUBDIVISION, sizes=None))
+        alt_mesh = decode_detailed(alt)
+        err = self.chamfer(*mesh) if chamfer is None else chamfer
+        alt_err = self.chamfer(alt_mesh.vertices, alt_mesh.faces)
+        if alt_err < err:
+            return alt, (alt_mesh.vertices, alt_mesh.faces), alt_err
+        return data, mesh, err
+
     def chamfer(self, out_v: np.ndarray, out_f: np.ndarray) -> float:
         """The summary's error: Chamfer distance to the input in its normalized frame (SUMMARY_CHAMFER_SAMPLES)."""
         from tetweave_codec.metrics import chamfer_distance
@@ -283,6 +307,8 @@ class Job:
 
         t0 = time.perf_counter()
         data = self.pack(fin, ctx) if data is None else data
+        if self.subdivision:
+            data, decoded, chamfer = self._kept_filter(data, chamfer)
         out_v, out_f = decode(data) if decoded is None else decoded
         seconds = {**self.seconds, **ctx.seconds}
         seconds["extract"] = time.perf_counter() - t0
