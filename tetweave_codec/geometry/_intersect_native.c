@@ -26,6 +26,39 @@ static int cmp_double(const void *a, const void *b) {
     return (x > y) - (x < y);
 }
 
+/* The k-th smallest of a[0..n) (0-based), moving every smaller value before position k: Hoare's selection, O(n)
+ * expected instead of a full qsort (30 ms of a 320K-face check). After 64 rounds (an adversarial order) the rest
+ * is sorted, so the worst case stays O(n log n). */
+static double kth_smallest(double *a, int64_t n, int64_t k) {
+    int64_t lo = 0, hi = n - 1;
+    for (int round = 0; lo < hi; round++) {
+        if (round == 64) {
+            qsort(a + lo, (size_t)(hi - lo + 1), sizeof(double), cmp_double);
+            return a[k];
+        }
+        double pivot = a[lo + (hi - lo) / 2];
+        int64_t i = lo, j = hi;
+        while (i <= j) {
+            while (a[i] < pivot) i++;
+            while (a[j] > pivot) j--;
+            if (i <= j) {
+                double t = a[i];
+                a[i] = a[j];
+                a[j] = t;
+                i++;
+                j--;
+            }
+        }
+        if (k <= j)
+            hi = j;
+        else if (k >= i)
+            lo = i;
+        else
+            return a[k];
+    }
+    return a[k];
+}
+
 static inline void sub3(const double *a, const double *b, double *r) {
     r[0] = a[0] - b[0];
     r[1] = a[1] - b[1];
@@ -375,11 +408,18 @@ static PyObject *faces_flags(PyObject *self, PyObject *args) {
         goto done;
     }
     memcpy(sorted, ext, sizeof(double) * (size_t)n);
-    qsort(sorted, (size_t)n, sizeof(double), cmp_double);
-    double median = (n % 2) ? sorted[n / 2] : (sorted[n / 2 - 1] + sorted[n / 2]) / 2.0;
+    double upper = kth_smallest(sorted, n, n / 2), median = upper;
+    if (n % 2 == 0) { /* the largest value before position n / 2 is the (n / 2 - 1)-th smallest */
+        double lower = sorted[0];
+        for (int64_t i = 1; i < n / 2; i++)
+            if (sorted[i] > lower) lower = sorted[i];
+        median = (lower + upper) / 2.0;
+    }
     double cell = 2.0 * median;
     if (!(cell > 0)) {
-        cell = sorted[n - 1];
+        cell = sorted[0];
+        for (int64_t i = 1; i < n; i++)
+            if (sorted[i] > cell) cell = sorted[i];
         if (cell == 0) cell = 1.0;
     }
     free(sorted);
