@@ -32,6 +32,8 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from tetweave_codec.geometry.smoothing import mesh_edges
+
 EDGE_NEAR = 0.375  # weight of an edge's two ends in its new vertex
 EDGE_FAR = 0.125  # weight of the two opposite corners
 BETA_VALENCE_3 = 0.1875  # Warren's beta for three neighbours; 3 / (8k) above
@@ -41,19 +43,26 @@ class LoopLevel(NamedTuple):
     """The connectivity of one Loop level of a mesh with `num_vertices` vertices (numpy int64).
 
     edges (E,2): a < b, ascending; opposite (E,2): the third corners of the edge's two faces, -1 -1 when the edge
-    does not have exactly two; faces (4F,3): the refined faces (vertex V + e is edge e's new vertex).
+    does not have exactly two; faces (4F,3): the refined faces (vertex V + e is edge e's new vertex);
+    neighbours (2E,2): `smoothing.mesh_edges` of the input faces (each edge both ways, sorted by (i, j)), whose
+    order is the spec's order of the neighbour sums.
     """
 
     num_vertices: int
     edges: np.ndarray
     opposite: np.ndarray
     faces: np.ndarray
+    neighbours: np.ndarray
 
 
-def loop_level(faces: Any, num_vertices: int) -> LoopLevel:
-    """The connectivity of one Loop level: faces (F,3) int (numpy or torch) over `num_vertices` vertices."""
+def loop_level(faces: Any, num_vertices: int, neighbours: np.ndarray | None = None) -> LoopLevel:
+    """The connectivity of one Loop level: faces (F,3) int (numpy or torch) over `num_vertices` vertices.
+
+    neighbours: `mesh_edges(faces, num_vertices)` when the caller has it (the decoder's smoothing does)."""
     n = int(num_vertices)
     f = np.asarray(faces.cpu().numpy() if hasattr(faces, "cpu") else faces, dtype=np.int64).reshape(-1, 3)
+    if neighbours is None:
+        neighbours = mesh_edges(f, n)
     a, b, c = f[:, 0], f[:, 1], f[:, 2]
     u = np.concatenate([a, b, c])  # half-edges (a,b), (b,c), (c,a) of every face, then their opposite corners
     w = np.concatenate([b, c, a])
@@ -84,13 +93,12 @@ def loop_level(faces: Any, num_vertices: int) -> LoopLevel:
         ],
         1,
     ).reshape(-1, 3)
-    return LoopLevel(n, edges, opposite, new)
+    return LoopLevel(n, edges, opposite, new, np.asarray(neighbours, dtype=np.int64))
 
 
 def _vertex_weights(level: LoopLevel) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per old vertex: its valence k (float64), beta and 1 - k * beta (as the spec rounds them)."""
-    e = level.edges
-    k = np.bincount(e.reshape(-1), minlength=level.num_vertices).astype(np.float64)
+    k = np.bincount(level.neighbours[:, 0], minlength=level.num_vertices).astype(np.float64)
     beta = np.where(k > 3, 3.0 / (8.0 * np.maximum(k, 1.0)), BETA_VALENCE_3)
     beta[k < 3] = 0.0
     return k, beta, 1.0 - k * beta
@@ -112,25 +120,31 @@ def midpoint_subdivide(vertices: np.ndarray, faces: np.ndarray, levels: int) -> 
 
 
 def loop_and_midpoint(
-    vertices: np.ndarray, reference: np.ndarray, faces: np.ndarray, levels: int
+    vertices: np.ndarray,
+    reference: np.ndarray,
+    faces: np.ndarray,
+    levels: int,
+    neighbours: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """`loop_subdivide(vertices, faces, levels)` and `midpoint_subdivide(reference, faces, levels)` (same faces),
-    the connectivity computed once: (vertices', reference', faces')."""
-    v, f, topology = _refine(vertices, faces, levels, midpoint=False)
+    the connectivity computed once: (vertices', reference', faces'). neighbours: `mesh_edges(faces, V)` if known."""
+    v, f, topology = _refine(vertices, faces, levels, midpoint=False, neighbours=neighbours)
     r = np.asarray(reference, dtype=np.float64)
     for level in topology:
         r = _apply_level(r, level, midpoint=True)
     return v, r, f
 
 
-def _refine(vertices, faces, levels: int, midpoint: bool) -> tuple[np.ndarray, np.ndarray, list[LoopLevel]]:
+def _refine(
+    vertices, faces, levels: int, midpoint: bool, neighbours: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray, list[LoopLevel]]:
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
     topology = []
     for _ in range(levels):
         if len(f) == 0:
             break
-        level = loop_level(f, len(v))
+        level = loop_level(f, len(v), neighbours if not topology else None)
         v = _apply_level(v, level, midpoint)
         f = level.faces
         topology.append(level)
@@ -146,11 +160,8 @@ def _apply_level(v: np.ndarray, level: LoopLevel, midpoint: bool) -> np.ndarray:
     edge_v = 0.5 * ends
     edge_v[two] = EDGE_NEAR * ends[two] + EDGE_FAR * (v[o[two, 0]] + v[o[two, 1]])
     n = level.num_vertices
-    # neighbour sums in ascending j: each undirected edge gives (a, b) and (b, a); sorted by (i, j) below
-    src = np.concatenate([e[:, 0], e[:, 1]])
-    dst = np.concatenate([e[:, 1], e[:, 0]])
-    order = np.argsort(src * max(n, 1) + dst, kind="stable")
-    src, dst = src[order], dst[order]
+    # bincount adds in input order: the neighbour list is sorted by (i, j), so each sum runs over ascending j
+    src, dst = level.neighbours[:, 0], level.neighbours[:, 1]
     total = np.stack([np.bincount(src, weights=v[dst, a], minlength=n) for a in range(3)], axis=1)
     _, beta, keep = _vertex_weights(level)
     old = keep[:, None] * v + beta[:, None] * total
@@ -175,9 +186,10 @@ def level_matrix(level: LoopLevel, midpoint: bool = False):
         cols += [o[two, 0], o[two, 1]]
         vals += [np.full(two.sum(), EDGE_FAR)] * 2
         _, beta, keep = _vertex_weights(level)
-        rows += [np.arange(n), e[:, 0], e[:, 1]]
-        cols += [np.arange(n), e[:, 1], e[:, 0]]
-        vals += [keep, beta[e[:, 0]], beta[e[:, 1]]]
+        nb = level.neighbours
+        rows += [np.arange(n), nb[:, 0]]
+        cols += [np.arange(n), nb[:, 1]]
+        vals += [keep, beta[nb[:, 0]]]
     else:
         rows.append(np.arange(n))
         cols.append(np.arange(n))

@@ -57,13 +57,12 @@ def filter_surface(vertices: np.ndarray, faces: np.ndarray, smoothing: int, subd
         )
     if (smoothing <= 0 and subdivision <= 0) or len(f0) == 0:
         return FilteredSurface(v0, f0, 0, False)
-    v = v0
-    if smoothing > 0:
-        # marching tets' output is a checked closed 2-manifold: its half-edges are the edges, once each way
-        v = taubin(v0, f0, smoothing, edges=mesh_edges(f0, len(v0), closed=True))
+    # marching tets' output is a checked closed 2-manifold: its half-edges are the edges, once each way
+    edges = mesh_edges(f0, len(v0), closed=True)
+    v = taubin(v0, f0, smoothing, edges=edges) if smoothing > 0 else v0
     reference, f = v0, f0
     if subdivision > 0:
-        v, reference, f = loop_and_midpoint(v, v0, f0, subdivision)
+        v, reference, f = loop_and_midpoint(v, v0, f0, subdivision, neighbours=edges)
     out, restored, gave_up = restore_crossings(v, reference, f)
     if gave_up:
         return FilteredSurface(v0, f0, len(v0), True)
@@ -181,8 +180,8 @@ def _factors(faces: Any, n: int, smoothing: int, subdivision: int):
 
     f = np.asarray(faces.cpu().numpy() if hasattr(faces, "cpu") else faces, dtype=np.int64)
     mats = []
+    e = mesh_edges(f, n) if len(f) else None
     if smoothing > 0 and len(f):
-        e = mesh_edges(f, n)
         deg = np.bincount(e[:, 0], minlength=n).astype(np.float64)
         mean = sps.csr_matrix((1.0 / deg[e[:, 0]], (e[:, 0], e[:, 1])), shape=(n, n))
         # vertices without neighbours keep their place (W's row is 0 there: the identity row instead)
@@ -190,7 +189,8 @@ def _factors(faces: Any, n: int, smoothing: int, subdivision: int):
         lap = mean + sps.diags((deg == 0).astype(np.float64)) - eye
         mats += [(eye + TAUBIN_LAMBDA * lap).tocsr(), (eye + TAUBIN_MU * lap).tocsr()] * smoothing
     for _ in range(subdivision if len(f) else 0):
-        level = loop_level(f, n)
+        level = loop_level(f, n, e)
+        e = None  # the next level's faces are new
         mats.append(level_matrix(level))
         f, n = level.faces, n + len(level.edges)
     return mats, f
