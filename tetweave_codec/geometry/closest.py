@@ -1,4 +1,11 @@
-"""Exact closest points on a triangle mesh: one home for the AABB tree every distance query uses (libigl).
+"""Closest points on a triangle mesh: one home for the bounding-volume trees every distance query uses.
+
+`SurfaceTree` (libigl's AABB tree, float64) is exact and serves the metrics, the initialization and the fit's
+input surface. `FitSurfaceTree` serves the fit's *current* mesh, rebuilt whenever marching tets changes its faces
+(hundreds of times per encode): FCPW's float32 BVH builds 4x faster than libigl's tree (a 74K-face mesh: 13 ms
+against 52 ms, one thread) and picks the closest face; the closest point and its distance are then computed in
+float64 on that face. Float32 can pick a face whose distance is within ~1e-7 (relative) of the closest one, an
+error far below anything the fit resolves; the metrics never use it.
 
 `SurfaceTree(vertices (V,3), faces (F,3))` builds the tree once; `query(points (n,3))` returns the squared distance
 (n,), the closest face (n,) int64 and the closest point (n,3) of each query point, exactly as
@@ -20,6 +27,7 @@ from __future__ import annotations
 import numpy as np
 
 from tetweave_codec.formats.quantize import morton_keys
+from tetweave_codec.geometry.triangles import closest_on_triangles
 
 # Batches below this many points run on one thread in libigl (igl::parallel_for's min_parallel in AABB).
 PARALLEL_MIN_QUERIES = 10_001
@@ -61,6 +69,47 @@ class SurfaceTree:
         out_face[order] = np.asarray(face, dtype=np.int64).reshape(-1)[:n]
         out_closest[order] = np.asarray(closest).reshape(-1, 3)[:n]
         return out_sq, out_face, out_closest
+
+
+class FitSurfaceTree:
+    """A float32 BVH (FCPW) of a triangle mesh, vertices (V,3) and faces (F,3) kept as given (float64, int64).
+
+    `query` answers like `SurfaceTree.query`: squared distance (n,), closest face (n,) int64 and closest point (n,3),
+    the last two computed in float64 on the face the BVH found (see the module docstring).
+    """
+
+    def __init__(self, vertices: np.ndarray, faces: np.ndarray):
+        import fcpw
+
+        self.vertices = np.ascontiguousarray(vertices, dtype=np.float64)
+        self.faces = np.ascontiguousarray(faces, dtype=np.int64).reshape(-1, 3)
+        self._scene = fcpw.scene_3D()
+        if len(self.faces):
+            self._scene.set_object_count(1)
+            self._scene.set_object_vertices(np.asfortranarray(self.vertices, dtype=np.float32), 0)
+            self._scene.set_object_triangles(np.asfortranarray(self.faces, dtype=np.int32), 0)
+            # the centre split of the longest axis: 2.3x faster to build than the surface-area heuristics, whose
+            # faster queries do not pay for it at a few thousand queries per tree
+            self._scene.build(fcpw.aggregate_type.bvh_longest_axis_center, True)
+
+    def query(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Squared distance (n,), closest face (n,) int64 and closest point (n,3) on the mesh of each of points
+        (n,3), in the order given. ValueError when the mesh has no faces."""
+        import fcpw
+
+        p = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
+        n = len(p)
+        if n == 0:
+            return np.zeros(0), np.zeros(0, dtype=np.int64), np.zeros((0, 3))
+        if len(self.faces) == 0:
+            raise ValueError("cannot find closest points on a mesh without faces")
+        found = fcpw.interaction_3D_list()
+        self._scene.find_closest_points(np.asfortranarray(p, dtype=np.float32), np.full(n, np.inf, np.float32), found)
+        face = np.fromiter((i.primitive_index for i in found), dtype=np.int64, count=n)
+        if face.min() < 0:  # FCPW found nothing (a point at infinity): fall back to the exact tree
+            return SurfaceTree(self.vertices, self.faces).query(p)
+        closest, _ = closest_on_triangles(p, self.vertices[self.faces[face]])
+        return ((p - closest) ** 2).sum(1), face, closest
 
 
 def _spatial_order(points: np.ndarray) -> np.ndarray:

@@ -125,3 +125,51 @@ def points_from_barycentrics(vertices: Any, faces: Any, face: Any, bary: Any) ->
     """Points (n,3) at barycentric coordinates bary (n,3) of faces face (n,) of a mesh; torch, differentiable."""
     corners = vertices[faces[face]]  # (n,3,3)
     return (bary[..., None] * corners).sum(1)
+
+
+def closest_on_triangles(points: np.ndarray, tri: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Closest point (n,3) on each triangle tri (n,3,3) to points (n,3), and its barycentric coordinates (n,3).
+
+    numpy float64, exact up to rounding: the Voronoi-region tests of Ericson's *Real-Time Collision Detection*
+    (5.1.5), vectorized. A degenerate triangle (a segment or a point) gets the closest point of its region tests,
+    which is on the triangle's closure.
+    """
+    p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    t = np.asarray(tri, dtype=np.float64).reshape(-1, 3, 3)
+    a, b, c = t[:, 0], t[:, 1], t[:, 2]
+    ab, ac, ap = b - a, c - a, p - a
+    d1, d2 = (ab * ap).sum(1), (ac * ap).sum(1)
+    bp, cp = p - b, p - c
+    d3, d4 = (ab * bp).sum(1), (ac * bp).sum(1)
+    d5, d6 = (ab * cp).sum(1), (ac * cp).sum(1)
+    va = d3 * d6 - d5 * d4
+    vb = d5 * d2 - d1 * d6
+    vc = d1 * d4 - d3 * d2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        # interior: (va, vb, vc) / sum are the barycentrics; the regions below override it where they apply
+        denom = va + vb + vc
+        v = vb / denom
+        w = vc / denom
+        bary = np.stack([1.0 - v - w, v, w], axis=1)
+        # the regions, tested in Ericson's order; later assignments are guarded by `todo` so that the first holds
+        todo = np.ones(len(p), dtype=bool)
+
+        def take(mask: np.ndarray, value: np.ndarray) -> None:
+            m = mask & todo
+            bary[m] = value[m]
+            todo[m] = False
+
+        n = len(p)
+        one, zero = np.ones(n), np.zeros(n)
+        take((d1 <= 0) & (d2 <= 0), np.stack([one, zero, zero], 1))  # vertex a
+        take((d3 >= 0) & (d4 <= d3), np.stack([zero, one, zero], 1))  # vertex b
+        s_ab = d1 / (d1 - d3)
+        take((vc <= 0) & (d1 >= 0) & (d3 <= 0), np.stack([1.0 - s_ab, s_ab, zero], 1))  # edge ab
+        take((d6 >= 0) & (d5 <= d6), np.stack([zero, zero, one], 1))  # vertex c
+        s_ac = d2 / (d2 - d6)
+        take((vb <= 0) & (d2 >= 0) & (d6 <= 0), np.stack([1.0 - s_ac, zero, s_ac], 1))  # edge ac
+        s_bc = (d4 - d3) / ((d4 - d3) + (d5 - d6))
+        take((va <= 0) & ((d4 - d3) >= 0) & ((d5 - d6) >= 0), np.stack([zero, 1.0 - s_bc, s_bc], 1))  # edge bc
+    bary = np.nan_to_num(bary, nan=1.0 / 3.0, posinf=1.0 / 3.0, neginf=1.0 / 3.0)
+    closest = (bary[:, :, None] * t).sum(1)
+    return closest, bary
