@@ -39,10 +39,6 @@ class Schedule:
     # neighbours, the cheapest to remove first (fit.relocate); 0 = only passive points move (the paper). See
     # benchmarks/results/relocation.md.
     relocate: float = 0.15
-    # Input surface samples drawn per iteration for the 3-D term's input -> mesh direction, as a multiple of the
-    # control mesh's vertex count (the mesh -> input direction draws that many), at least
-    # surface_loss.MIN_INPUT_SAMPLES. 0 = that minimum alone.
-    input_sample_ratio: float = 0.0
 
 
 # Iteration counts are far below the paper's 5000 + 2000: the SDF start begins near the answer, and the 3-D term

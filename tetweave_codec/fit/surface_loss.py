@@ -43,8 +43,10 @@ from tetweave_codec.geometry.triangles import (
 
 # Smoothing of sqrt at 0 (normalized units): far below any distance the fit resolves.
 _EPS = 1e-6
-# Input surface samples per call, at least (`SurfaceTarget.loss`'s per_call; Schedule.input_sample_ratio may ask more).
-MIN_INPUT_SAMPLES = 8_000
+# Input surface samples per call (`SurfaceTarget.loss`'s per_call). As many as the control mesh has vertices
+# (2x-3x more at 8K-18K points) bought 1.5-2.5 % of bytes x Chamfer on spot and igea at 20-40 KB for 17-33 % more
+# CPU, and lost 5 % on the bunny (benchmarks/results/encode_speed.md, session 7): not kept.
+INPUT_SAMPLES = 8_000
 # Calls for which the current mesh's AABB tree is reused while the mesh keeps the same faces (see `_MeshTree`).
 TREE_REUSE_CALLS = 4
 
@@ -100,7 +102,7 @@ class SurfaceTarget:
         vertices: Tensor,
         faces: Tensor,
         generator: torch.Generator,
-        per_call: int = MIN_INPUT_SAMPLES,
+        per_call: int = INPUT_SAMPLES,
         min_samples: int | None = None,
     ) -> SurfaceLoss:
         """Symmetric point-to-surface Chamfer distance and normal error between the mesh (vertices (V,3), faces
