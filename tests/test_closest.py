@@ -9,6 +9,7 @@ import trimesh
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from tetweave_codec.geometry import closest
 from tetweave_codec.geometry.closest import PAD_FROM, PARALLEL_MIN_QUERIES, FitSurfaceTree, SurfaceTree
 from tetweave_codec.geometry.triangles import closest_on_triangles
 
@@ -83,8 +84,19 @@ def test_identical_points_and_a_flat_batch(sphere):
     assert np.all(sq == sq[0]) and np.all(face == face[0]) and np.all(cp == cp[0])
 
 
+@pytest.fixture(params=["fcpw", "libigl"])
+def fit_backend(request, monkeypatch):
+    """FitSurfaceTree on FCPW (skipped where it is not installed) and on its fallback, libigl's exact tree."""
+    if request.param == "fcpw":
+        if closest.fcpw_module() is None:
+            pytest.skip("fcpw is not installed (the `fast` extra)")
+    else:
+        monkeypatch.setattr(closest, "fcpw_module", lambda: None)
+    return request.param
+
+
 @pytest.mark.parametrize("n", [1, 37, 5_000])
-def test_fit_tree_matches_the_exact_tree(sphere, n):
+def test_fit_tree_matches_the_exact_tree(sphere, n, fit_backend):
     v, f = sphere
     p = np.random.default_rng(n).normal(size=(n, 3)) * 1.5
     sq, face, cp = FitSurfaceTree(v, f).query(p)
@@ -98,7 +110,7 @@ def test_fit_tree_matches_the_exact_tree(sphere, n):
     np.testing.assert_allclose(((p - cp) ** 2).sum(1), sq, rtol=1e-12)
 
 
-def test_fit_tree_without_faces_is_an_error_not_a_crash():
+def test_fit_tree_without_faces_is_an_error_not_a_crash(fit_backend):
     tree = FitSurfaceTree(np.zeros((3, 3)), np.zeros((0, 3), np.int64))
     assert tree.query(np.zeros((0, 3)))[0].shape == (0,)
     with pytest.raises(ValueError, match="without faces"):

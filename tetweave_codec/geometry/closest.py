@@ -5,7 +5,8 @@ input surface. `FitSurfaceTree` serves the fit's *current* mesh, rebuilt wheneve
 (hundreds of times per encode): FCPW's float32 BVH builds 4x faster than libigl's tree (a 74K-face mesh: 13 ms
 against 52 ms, one thread) and picks the closest face; the closest point and its distance are then computed in
 float64 on that face. Float32 can pick a face whose distance is within ~1e-7 (relative) of the closest one, an
-error far below anything the fit resolves; the metrics never use it.
+error far below anything the fit resolves; the metrics never use it. FCPW is an optional dependency (the `fast`
+extra: it has no wheel for every platform and Python); without it `FitSurfaceTree` is libigl's exact tree.
 
 `SurfaceTree(vertices (V,3), faces (F,3))` builds the tree once; `query(points (n,3))` returns the squared distance
 (n,), the closest face (n,) int64 and the closest point (n,3) of each query point, exactly as
@@ -79,10 +80,12 @@ class FitSurfaceTree:
     """
 
     def __init__(self, vertices: np.ndarray, faces: np.ndarray):
-        import fcpw
-
         self.vertices = np.ascontiguousarray(vertices, dtype=np.float64)
         self.faces = np.ascontiguousarray(faces, dtype=np.int64).reshape(-1, 3)
+        fcpw = fcpw_module()
+        self._exact = SurfaceTree(self.vertices, self.faces) if fcpw is None else None
+        if fcpw is None:
+            return
         self._scene = fcpw.scene_3D()
         if len(self.faces):
             self._scene.set_object_count(1)
@@ -95,6 +98,8 @@ class FitSurfaceTree:
     def query(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Squared distance (n,), closest face (n,) int64 and closest point (n,3) on the mesh of each of points
         (n,3), in the order given. ValueError when the mesh has no faces."""
+        if self._exact is not None:
+            return self._exact.query(points)
         import fcpw
 
         p = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
@@ -110,6 +115,18 @@ class FitSurfaceTree:
             return SurfaceTree(self.vertices, self.faces).query(p)
         closest, _ = closest_on_triangles(p, self.vertices[self.faces[face]])
         return ((p - closest) ** 2).sum(1), face, closest
+
+
+def fcpw_module():
+    """The `fcpw` module, or None when it is not installed (or too old to have the API used here)."""
+    try:
+        import fcpw
+    except ImportError:
+        return None
+    needed = ("scene_3D", "interaction_3D_list", "aggregate_type")
+    if not all(hasattr(fcpw, name) for name in needed) or not hasattr(fcpw.aggregate_type, "bvh_longest_axis_center"):
+        return None
+    return fcpw
 
 
 def _spatial_order(points: np.ndarray) -> np.ndarray:
