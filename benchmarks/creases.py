@@ -7,7 +7,7 @@ Run from outside the repo root, one thread:
 Prints bytes, points kept, Chamfer distance (CD), edge Chamfer (ECD), edge F1 and normal consistency of the
 decoded mesh against the input (the bench's metrics, 100k samples), and whether the output is watertight and
 2-manifold (manifold3d), for each shape, size and mode ("off": no feature points, the start of before) and each
-`--smoothing` (the decoder's Taubin steps; default: the encoder's).
+`--smoothing` (the decoder's Taubin steps) and `--sh-degree` (defaults: the encoder's).
 """
 
 from __future__ import annotations
@@ -73,6 +73,7 @@ def main() -> None:
     ap.add_argument("--modes", nargs="+", default=["off", "on"], choices=["off", "on"])
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--smoothing", type=int, nargs="+", default=[None], help="Taubin steps (default: the encoder's)")
+    ap.add_argument("--sh-degree", type=int, nargs="+", default=[None], help="SH degrees (default: the encoder's)")
     args = ap.parse_args()
     torch.set_num_threads(1)
     opts = MetricOptions.for_samples(100_000)
@@ -81,12 +82,16 @@ def main() -> None:
         v, f = load(name)
         ref = prepare_reference(v, f, opts)
         for size in args.sizes:
-            for mode, smoothing in [(m, k) for m in args.modes for k in args.smoothing]:
+            settings = [(m, k, d) for m in args.modes for k in args.smoothing for d in args.sh_degree]
+            for mode, smoothing, degree in settings:
                 features.MIN_CREASE_LENGTH = default_length if mode == "on" else math.inf
                 t = time.process_time()
-                r = encode(v, f, size=size, device="cpu", seed=args.seed, measure=False, smoothing=smoothing)
+                chosen = {} if degree is None else {"sh_degree": degree}
+                r = encode(v, f, size=size, device="cpu", seed=args.seed, measure=False, smoothing=smoothing, **chosen)
                 met = evaluate(ref, r.vertices, r.faces, opts)
-                smooth = "" if smoothing is None else f" smoothing {smoothing}"
+                smooth = ("" if smoothing is None else f" smoothing {smoothing}") + (
+                    "" if degree is None else f" sh {degree}"
+                )
                 print(
                     f"{name:14} {size:6} B {mode:3}{smooth}: {len(r.data):6} B, {r.stats['points_kept']:5} points, "
                     f"CD {met['chamfer']:.2e}, ECD {met['edge_chamfer']:.2e}, EF1 {met['edge_f1']:.3f}, "

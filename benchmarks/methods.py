@@ -71,7 +71,8 @@ class Method(ABC):
 class TetweaveMethod(Method):
     """tetweave: fit with `tetweave_codec.encoder.encode`, rebuild with `tetweave_codec.decoder.decode`.
 
-    points: grid points during the fit; sh_degree 0..3; quality/iters/device/seed as in `tetweave encode`.
+    points: grid points during the fit; sh_degree 0..3, or None for the encoder's choice (`input_defaults`: 1,
+    none on inputs with sharp creases); quality/iters/device/seed as in `tetweave encode`.
     size: a target file size in bytes (rate control, `tetweave encode --size`) instead of a point count.
     progress: optional fit progress callback, passed to the encoder unchanged.
     """
@@ -81,7 +82,7 @@ class TetweaveMethod(Method):
     def __init__(
         self,
         points: int,
-        sh_degree: int = 1,
+        sh_degree: int | None = None,
         quality: str = "default",
         iters: int | None = None,
         device: str = "auto",
@@ -91,7 +92,7 @@ class TetweaveMethod(Method):
     ) -> None:
         self.size = None if size is None else int(size)
         self.points = int(points)
-        self.sh_degree = int(sh_degree)
+        self.sh_degree = None if sh_degree is None else int(sh_degree)
         self.quality = quality
         self.iters = iters
         self.device = device
@@ -99,17 +100,22 @@ class TetweaveMethod(Method):
         self.progress = progress
 
     @property
+    def _sh(self) -> str:
+        return "sh auto" if self.sh_degree is None else f"sh{self.sh_degree}"
+
+    @property
     def setting(self) -> str:
         if self.size is not None:
-            return f"size {self.size} sh{self.sh_degree}"
-        return f"{self.points} pts sh{self.sh_degree}"
+            return f"size {self.size} {self._sh}"
+        return f"{self.points} pts {self._sh}"
 
     @property
     def curve(self) -> str:
-        return f"tetweave sh{self.sh_degree}" + (" --size" if self.size is not None else "")
+        return f"tetweave {self._sh}" + (" --size" if self.size is not None else "")
 
     def params(self) -> dict:
-        return {"points": self.points, "sh_degree": self.sh_degree, "target_bytes": self.size or ""}
+        degree = "auto" if self.sh_degree is None else self.sh_degree
+        return {"points": self.points, "sh_degree": degree, "target_bytes": self.size or ""}
 
     def encode(self, vertices: np.ndarray, faces: np.ndarray) -> bytes:
         from tetweave_codec.encoder import encode

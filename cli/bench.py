@@ -62,6 +62,21 @@ def _ints(low: int, high: int):
     return convert
 
 
+def _degrees(ctx, param, value: str) -> list[int | None]:
+    """--sh-degree: comma-separated degrees 0..SH_DEGREE_MAX, "auto" -> None (the encoder's choice)."""
+    out: list[int | None] = []
+    for token in _split(value):
+        if token == "auto":
+            out.append(None)
+        elif token.isdigit() and int(token) <= SH_DEGREE_MAX:
+            out.append(int(token))
+        else:
+            raise click.BadParameter(f"SH degrees are 0-{SH_DEGREE_MAX} or auto, got {token!r}")
+    if not out:
+        raise click.BadParameter("give at least one SH degree (0-3 or auto)")
+    return out
+
+
 def _fractions(ctx, param, value: str) -> list[float]:
     try:
         out = [float(t.rstrip("%")) / (100.0 if t.endswith("%") else 1.0) for t in _split(value)]
@@ -112,7 +127,7 @@ def _command_line(p: dict) -> str:
             join(p["points"]),
             *(["--sizes", join(p["sizes"])] if p["sizes"] else []),
             "--sh-degree",
-            join(p["sh_degrees"]),
+            ",".join("auto" if d is None else str(d) for d in p["sh_degrees"]),
             "--quality",
             p["quality"],
         ]
@@ -161,9 +176,10 @@ def _command_line(p: dict) -> str:
 @click.option(
     "--sh-degree",
     "sh_degrees",
-    default="1",
-    callback=_ints(0, SH_DEGREE_MAX),
-    help="tetweave SH degrees, comma-separated; every degree runs at every --points.",
+    default="auto",
+    callback=_degrees,
+    help="tetweave SH degrees, comma-separated, 0-3 or auto (the encoder's choice: 1, none on inputs with sharp "
+    "creases); every degree runs at every --points.",
 )
 @quality_option
 @iters_option
@@ -217,7 +233,7 @@ def bench(
     methods: list[str],
     points: list[int],
     sizes: list[int],
-    sh_degrees: list[int],
+    sh_degrees: list[int | None],
     quality: str,
     iters: int | None,
     draco_bits: list[int],
@@ -292,7 +308,7 @@ def bench(
                 iters=iters,
                 device=device,
                 seed=seed,
-                progress=_fit_progress(say, f"tetweave {label} sh{d}"),
+                progress=_fit_progress(say, f"tetweave {label} {'sh auto' if d is None else f'sh{d}'}"),
                 size=s,
             )
             for d in sh_degrees

@@ -90,9 +90,10 @@ def _progress_lines(every_s: float = PROGRESS_LINE_SECONDS):
 )
 @click.option(
     "--sh-degree",
-    type=click.Choice(["none", "0", "1", "2", "3"]),
-    default="1",
-    help="Degree of the directional distances: none stores only s; higher places vertices more freely.",
+    type=click.Choice(["auto", "none", "0", "1", "2", "3"]),
+    default="auto",
+    help="Degree of the directional distances: none stores only s; higher places vertices more freely; auto: 1, "
+    "none on inputs with sharp creases (CAD parts), where the coefficients cost more than they buy.",
 )
 @quality_option
 @iters_option
@@ -255,7 +256,7 @@ def _encode_one(mesh: Path, output: Path | None, opts, quiet: bool) -> None:
     if opts.iters is None:  # the encoder scales the preset's iterations for smaller fits, as here
         schedule = scaled_schedule(schedule, opts.points)
     options = opts.encoder_kwargs(dev)
-    size, max_error, sh_degree = opts.size, opts.max_error, opts.sh_degree
+    size, max_error = opts.size, opts.max_error
     t0 = time.perf_counter()
     if quiet:
         result = encode_mesh(vertices, faces, **options)
@@ -273,7 +274,7 @@ def _encode_one(mesh: Path, output: Path | None, opts, quiet: bool) -> None:
     click.echo(
         f"wrote {output} ({st['bytes']:,} bytes, {8 * st['bytes'] / max(st['points_kept'], 1):.1f} bits per point, "
         f".tw v{st['container_version']}): {st['points_kept']:,} points kept of {st['points_target']:,}, "
-        f"SH degree {sh_degree}, "
+        f"SH degree {'none' if st['sh_degree'] < 0 else st['sh_degree']}, "
         f"{st['vertices']:,} vertices, {st['faces']:,} faces"
     )
     click.echo(f"Chamfer distance to the input (normalized frame): {chamfer}")

@@ -398,6 +398,8 @@ def test_bench_command_end_to_end_with_draco(mesh_dir, tmp_path):
         (["--methods", "draco,zip"], "choose among"),
         (["--draco-bits", "8,40"], "1..30"),
         (["--decimate", "0"], "(0, 1]"),
+        (["--sh-degree", "1,4"], "0-3 or auto"),
+        (["--sh-degree", "one"], "0-3 or auto"),
     ],
 )
 def test_bench_rejects_bad_options(mesh_dir, tmp_path, args, message):
@@ -435,6 +437,19 @@ def test_tetweave_method_through_the_batch():
     assert row["chamfer"] < 0.05
     v2, f2 = result.decoded[method.name]
     assert len(f2) == row["n_faces"]
+
+
+def test_tetweave_method_with_the_encoders_sh_degree():
+    """sh_degree None: the encoder's choice (`input_defaults`); a CSG box has creases, so no SH coefficients."""
+    from tetweave_codec.cli.bench import _degrees
+
+    assert _degrees(None, None, "auto,0,3") == [None, 0, 3]
+    box = manifold3d.Manifold.cube([1.0, 0.6, 0.4], True).to_mesh()
+    v, f = np.asarray(box.vert_properties, np.float64)[:, :3], np.asarray(box.tri_verts, np.int64)
+    method = TetweaveMethod(256, sh_degree=None, quality="fast", iters=4, device="cpu", seed=0)
+    row = run_mesh("box", v, f, [method], OPTIONS).rows[1]
+    assert row["error"] == "" and row["setting"] == "256 pts sh auto" and row["sh_degree"] == "auto"
+    assert row["watertight"] and row["two_manifold"]
 
 
 def test_tetweave_size_method_through_the_batch():

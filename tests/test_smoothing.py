@@ -210,11 +210,26 @@ def test_encoder_refuses_bad_smoothing():
         encode(m.vertices, m.faces, points=128, smoothing=1, container_version=1)
 
 
-def test_default_filter_is_off_for_cad_parts_only():
-    from tetweave_codec.encoder import default_filter
+def test_input_defaults_turn_filter_and_sh_off_for_cad_parts_only():
+    from tetweave_codec.encoder import CREASED_SH_DEGREE, DEFAULT_SH_DEGREE, input_defaults
     from tetweave_codec.fit.config import DEFAULT_SMOOTHING, DEFAULT_SUBDIVISION
 
     cube = manifold3d.Manifold.cube([2, 1, 1], True).to_mesh()
-    assert default_filter(np.asarray(cube.vert_properties)[:, :3] * 50, np.asarray(cube.tri_verts)) == (0, 0)
+    chosen = input_defaults(np.asarray(cube.vert_properties)[:, :3] * 50, np.asarray(cube.tri_verts))
+    assert chosen == (0, 0, CREASED_SH_DEGREE) == (0, 0, -1)
     ball = trimesh.creation.icosphere(3)
-    assert default_filter(ball.vertices * 1e-3, ball.faces) == (DEFAULT_SMOOTHING, DEFAULT_SUBDIVISION) == (1, 1)
+    smooth = (DEFAULT_SMOOTHING, DEFAULT_SUBDIVISION, DEFAULT_SH_DEGREE)
+    assert input_defaults(ball.vertices * 1e-3, ball.faces) == smooth
+    assert input_defaults(ball.vertices, ball.faces) == (1, 1, 1)
+
+
+def test_encode_reports_the_sh_degree_it_chose():
+    from tetweave_codec.encoder import encode
+    from tetweave_codec.formats.tw import unpack
+
+    cube = manifold3d.Manifold.cube([2, 1, 1], True).to_mesh()
+    v, f = np.asarray(cube.vert_properties)[:, :3], np.asarray(cube.tri_verts)
+    result = encode(v, f, points=128, quality="fast", iters=4, measure=False, device="cpu")
+    assert result.stats["sh_degree"] == -1 and unpack(result.data).sh_degree == -1
+    result = encode(v, f, points=128, quality="fast", iters=4, measure=False, device="cpu", sh_degree=1)
+    assert result.stats["sh_degree"] == 1 and unpack(result.data).sh_degree == 1

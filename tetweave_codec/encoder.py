@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 import torch
@@ -36,6 +37,11 @@ from tetweave_codec.geometry.triangles import face_areas
 
 DEFAULT_POINTS = 16384
 DEFAULT_SH_DEGREE = 1
+# SH degree of inputs with sharp creases (`input_defaults`): none. One run per case, fandisk, bytes x Chamfer of
+# rate-controlled files against degree 1 (benchmarks/results/creases.md, session 7): 5 / 10 / 20 / 40 KB 0.850 /
+# 0.923 / 0.988 / 0.971 (seed 1 at 10 / 20 KB: 0.899 / 0.988); on the smooth meshes degree 1 stays (igea 10 KB
+# 1.075 without it, spot 0.978-1.000, stanford-bunny 0.978-1.014).
+CREASED_SH_DEGREE = -1
 # Samples per mesh of the Chamfer distance in the summary: enough for ~1e-5 resolution in the normalized frame.
 SUMMARY_CHAMFER_SAMPLES = 100_000
 MAX_POINTS = 1 << 22
@@ -85,7 +91,7 @@ def encode(
     faces: np.ndarray,
     *,
     points: int = DEFAULT_POINTS,
-    sh_degree: int = DEFAULT_SH_DEGREE,
+    sh_degree: int | None = None,
     quality: str = "default",
     iters: int | None = None,
     device: str | torch.device = "auto",
@@ -104,7 +110,8 @@ def encode(
 
     vertices (V,3), faces (F,3): any triangle mesh (open, multi-component and non-manifold inputs are fine).
     points: target grid points during the fit (passive ones are dropped before writing, so fewer are stored).
-    sh_degree: -1 (none) or 0..3, directional distance coefficients per point (q = (degree+1)^2).
+    sh_degree: -1 (none) or 0..3, directional distance coefficients per point (q = (degree+1)^2); None =
+        `input_defaults`' choice.
     quality: "fast", "default" or "best" (see fit.QUALITY); iters overrides its main+late iteration count.
     measure: compute the Chamfer distance between the input and the decoded mesh for `stats`.
     container_version: 2 (quantized, entropy-coded; default) or 1 (raw float16).
@@ -114,18 +121,19 @@ def encode(
     max_error: rate control, the decoded mesh's Chamfer distance to the input (normalized frame, the summary's
         metric) is at most `max_error`, at the smallest size rate control finds.
     smoothing: Taubin steps 0-3 the decoder applies to the surface (the fit optimizes the smoothed one); None =
-        `default_filter` for container version 2, 0 for version 1 (which cannot store it).
+        `input_defaults`' choice for container version 2, 0 for version 1 (which cannot store it).
     subdivision: Loop levels 0-2 the decoder applies after the smoothing (the fit optimizes the subdivided
-        surface); None = `default_filter`'s choice for container version 2, 0 for version 1.
+        surface); None = `input_defaults`' choice for container version 2, 0 for version 1.
     Deterministic: the same input, options, seed, device and thread count give the same bytes.
     """
     v, f = _validate(vertices, faces)
     if size is None and max_error is None and not 64 <= points <= MAX_POINTS:
         raise InputError(f"points must be between 64 and {MAX_POINTS}, got {points}")
-    try:
-        check_degree(sh_degree)
-    except ValueError as exc:
-        raise InputError(f"{exc} (-1 = none)") from None
+    if sh_degree is not None:
+        try:
+            check_degree(sh_degree)
+        except ValueError as exc:
+            raise InputError(f"{exc} (-1 = none)") from None
     if container_version not in (1, 2):
         raise InputError(f"container version must be 1 or 2, got {container_version}")
     if (size is not None or max_error is not None) and container_version != 2:
@@ -140,10 +148,13 @@ def encode(
         raise InputError(f"subdivision must be 0-{MAX_SUBDIVISION} levels, got {subdivision}")
     if subdivision and container_version != 2:
         raise InputError("subdivision needs container version 2")
-    if smoothing is None or subdivision is None:
-        chosen = (0, 0) if container_version != 2 else default_filter(v, f)
-        smoothing = chosen[0] if smoothing is None else smoothing
-        subdivision = chosen[1] if subdivision is None else subdivision
+    if smoothing is None or subdivision is None or sh_degree is None:
+        chosen = input_defaults(v, f)
+        if container_version != 2:  # version 1 stores neither filter
+            chosen = chosen._replace(smoothing=0, subdivision=0)
+        smoothing = chosen.smoothing if smoothing is None else smoothing
+        subdivision = chosen.subdivision if subdivision is None else subdivision
+        sh_degree = chosen.sh_degree if sh_degree is None else sh_degree
     job = Job(
         v,
         f,
@@ -176,19 +187,28 @@ def encode(
     return job.result(fin, ctx, points, measure=measure)
 
 
-def default_filter(vertices: np.ndarray, faces: np.ndarray) -> tuple[int, int]:
-    """The decoder filter `encode` picks for a mesh, (Taubin steps, Loop levels): (DEFAULT_SMOOTHING,
-    DEFAULT_SUBDIVISION), none when the input has sharp creases (`fit.features.detect_features(...).found`: CAD
-    parts). Why: both round every crease the fit reproduces; on CSG parts smoothing doubled the edge Chamfer
-    distance at 1-2 KB (benchmarks/results/smoothing.md), while on scans and smooth shapes they save bytes at
-    equal error (benchmarks/results/subdivision.md). vertices (V,3) in any frame (the creases are looked for in
-    the normalized frame, as the fit's start does)."""
+class InputDefaults(NamedTuple):
+    """What `encode` picks for an input when not told: the decoder's Taubin steps and Loop levels, the SH degree."""
+
+    smoothing: int
+    subdivision: int
+    sh_degree: int
+
+
+def input_defaults(vertices: np.ndarray, faces: np.ndarray) -> InputDefaults:
+    """The settings `encode` picks for a mesh: (DEFAULT_SMOOTHING, DEFAULT_SUBDIVISION, DEFAULT_SH_DEGREE), and
+    (0, 0, CREASED_SH_DEGREE) when the input has sharp creases (`fit.features.detect_features(...).found`: CAD
+    parts). Why: smoothing and subdivision round every crease the fit reproduces; on CSG parts smoothing doubled
+    the edge Chamfer distance at 1-2 KB (benchmarks/results/smoothing.md), while on scans and smooth shapes they
+    save bytes at equal error (benchmarks/results/subdivision.md); the SH coefficients cost CAD parts more than
+    they buy (see CREASED_SH_DEGREE). vertices (V,3) in any frame (the creases are looked for in the normalized
+    frame, as the fit's start does)."""
     from tetweave_codec.fit.features import detect_features
     from tetweave_codec.meshio import normalize
 
     if detect_features(normalize(vertices)[0], faces).found:
-        return 0, 0
-    return DEFAULT_SMOOTHING, DEFAULT_SUBDIVISION
+        return InputDefaults(0, 0, CREASED_SH_DEGREE)
+    return InputDefaults(DEFAULT_SMOOTHING, DEFAULT_SUBDIVISION, DEFAULT_SH_DEGREE)
 
 
 class Job:

@@ -189,7 +189,7 @@ class FitConfig:
     subdivision: int = 0
 
 
-# Taubin steps of `tetweave encode` (container v2; encoder.default_filter turns it off on inputs with sharp
+# Taubin steps of `tetweave encode` (container v2; encoder.input_defaults turns it off on inputs with sharp
 # creases). Measured with benchmarks/fit_ab.py (benchmarks/results/smoothing.md): bytes x Chamfer against no
 # smoothing, 1 step: spot 0.82-0.87, stanford-bunny 0.94-0.99, igea 0.96-1.01, fandisk 0.95-1.06 (16 cases,
 # median 0.96); 2 steps helped spot more (0.78) but cost igea 11 % and fandisk 5 %.

@@ -36,18 +36,23 @@ class Task:
     data: bytes | None = None
 
 
+def sh_degree_value(text: str) -> int | None:
+    """The encoder's `sh_degree` for the CLI's --sh-degree: "auto" -> None (the encoder's choice), "none" -> -1."""
+    return {"auto": None, "none": -1}[text] if text in ("auto", "none") else int(text)
+
+
 @dataclass(frozen=True)
 class EncodeOptions:
     """`tetweave encode`'s options for one file, as the encoder API takes them (see `encoder_kwargs`).
 
-    sh_degree: "none" or "0".."3". size: target bytes; max_error: target Chamfer distance (rate control).
+    sh_degree: "auto", "none" or "0".."3". size: target bytes; max_error: target Chamfer distance (rate control).
     format_version: 1 or 2. position_bits / s_step / c_step: v2 quantization overrides (None = the defaults for
     `points`). smoothing, subdivision: the decoder's Taubin steps and Loop levels (None = the encoder's
     default). threads: torch CPU threads (0 = torch's default). measure: compute the Chamfer distance.
     """
 
     points: int = 16384
-    sh_degree: str = "1"
+    sh_degree: str = "auto"
     quality: str = "default"
     iters: int | None = None
     size: int | None = None
@@ -80,7 +85,7 @@ class EncodeOptions:
             quant = replace(quant, c_band_steps=(self.c_step,) * 4)
         return dict(
             points=self.points,
-            sh_degree=-1 if self.sh_degree == "none" else int(self.sh_degree),
+            sh_degree=sh_degree_value(self.sh_degree),
             quality=self.quality,
             iters=self.iters,
             device=device,
