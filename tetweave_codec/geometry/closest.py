@@ -82,7 +82,7 @@ class FitSurfaceTree:
     def __init__(self, vertices: np.ndarray, faces: np.ndarray):
         self.vertices = np.ascontiguousarray(vertices, dtype=np.float64)
         self.faces = np.ascontiguousarray(faces, dtype=np.int64).reshape(-1, 3)
-        fcpw = fcpw_module()
+        fcpw = self._fcpw = fcpw_module()
         self._exact = SurfaceTree(self.vertices, self.faces) if fcpw is None else None
         if fcpw is None:
             return
@@ -100,18 +100,16 @@ class FitSurfaceTree:
         (n,3), in the order given. ValueError when the mesh has no faces."""
         if self._exact is not None:
             return self._exact.query(points)
-        import fcpw
-
         p = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
         n = len(p)
         if n == 0:
             return np.zeros(0), np.zeros(0, dtype=np.int64), np.zeros((0, 3))
         if len(self.faces) == 0:
             raise ValueError("cannot find closest points on a mesh without faces")
-        found = fcpw.interaction_3D_list()
+        found = self._fcpw.interaction_3D_list()
         self._scene.find_closest_points(np.asfortranarray(p, dtype=np.float32), np.full(n, np.inf, np.float32), found)
         face = np.fromiter((i.primitive_index for i in found), dtype=np.int64, count=n)
-        if face.min() < 0:  # FCPW found nothing (a point at infinity): fall back to the exact tree
+        if face.min() < 0 or face.max() >= len(self.faces):  # FCPW found nothing (NaN, infinity): the exact tree
             return SurfaceTree(self.vertices, self.faces).query(p)
         closest, _ = closest_on_triangles(p, self.vertices[self.faces[face]])
         return ((p - closest) ** 2).sum(1), face, closest
