@@ -37,10 +37,10 @@ from tetweave_codec.geometry.triangles import face_areas
 
 DEFAULT_POINTS = 16384
 DEFAULT_SH_DEGREE = 1
-# SH degree of inputs with sharp creases (`input_defaults`): none. One run per case, fandisk, bytes x Chamfer of
-# rate-controlled files against degree 1 (benchmarks/results/creases.md, session 7): 5 / 10 / 20 / 40 KB 0.850 /
-# 0.923 / 0.988 / 0.971 (seed 1 at 10 / 20 KB: 0.899 / 0.988); on the smooth meshes degree 1 stays (igea 10 KB
-# 1.075 without it, spot 0.978-1.000, stanford-bunny 0.978-1.014).
+# SH degree of inputs with sharp creases (`input_defaults`): none. fandisk, bytes x Chamfer of rate-controlled
+# files against degree 1 (benchmarks/results/creases.md, session 7): 10 KB 0.87-0.92 (three seeds), 20 / 40 KB
+# 0.97-0.99, 5 KB 0.85-1.10 (three seeds, noise); CSG parts at 1-2 KB median 0.93. On the smooth meshes degree 1
+# stays (igea 10 KB 1.075 without it, spot 0.978-1.000, stanford-bunny 0.978-1.014).
 CREASED_SH_DEGREE = -1
 # Samples per mesh of the Chamfer distance in the summary: enough for ~1e-5 resolution in the normalized frame.
 SUMMARY_CHAMFER_SAMPLES = 100_000
