@@ -278,29 +278,28 @@ class Job:
             self.offset,
         )
 
-    def _kept_filter(self, data: bytes, chamfer: float | None) -> tuple[bytes, tuple[np.ndarray, np.ndarray], float]:
-        """(bytes, decoded mesh, Chamfer or None) of the file to keep. When the decoder had to drop a subdivided
-        file's whole filter (its crossing check did not settle: the result is the unsmoothed, unsubdivided
-        surface of a fit made for the subdivided one), the same points with the subdivision bits cleared (the
-        smoothing alone, with its own check) are kept instead if they decode closer to the input. Same bytes."""
+    def _kept_filter(self, data: bytes, full, chamfer: float | None):
+        """(bytes, DecodeResult, Chamfer or None) of the file to keep, given `full`, the decoder's result for `data`.
+        When the decoder had to drop a subdivided file's whole filter (its crossing check did not settle: the result
+        is the unsmoothed, unsubdivided surface of a fit made for the subdivided one), the same points with the
+        subdivision bits cleared (the smoothing alone, with its own check) are kept instead if they decode closer to
+        the input. Same bytes."""
         from dataclasses import replace
 
         from tetweave_codec.decoder import decode_detailed
         from tetweave_codec.formats.common import FLAG_SUBDIVISION
         from tetweave_codec.formats.tw import pack_v2, unpack
 
-        full = decode_detailed(data)
-        mesh = (full.vertices, full.faces)
         if not full.container.subdivision or not len(full.faces) or full.restored != len(full.vertices):
-            return data, mesh, chamfer
+            return data, full, chamfer
         tw = unpack(data)
         alt = pack_v2(replace(tw, flags=tw.flags & ~FLAG_SUBDIVISION, sizes=None))
-        alt_mesh = decode_detailed(alt)
-        err = self.chamfer(*mesh) if chamfer is None else chamfer
-        alt_err = self.chamfer(alt_mesh.vertices, alt_mesh.faces)
+        alt_full = decode_detailed(alt)
+        err = self.chamfer(full.vertices, full.faces) if chamfer is None else chamfer
+        alt_err = self.chamfer(alt_full.vertices, alt_full.faces)
         if alt_err < err:
-            return alt, (alt_mesh.vertices, alt_mesh.faces), alt_err
-        return data, mesh, err
+            return alt, alt_full, alt_err
+        return data, full, err
 
     def chamfer(self, out_v: np.ndarray, out_f: np.ndarray) -> float:
         """The summary's error: Chamfer distance to the input in its normalized frame (SUMMARY_CHAMFER_SAMPLES)."""
@@ -318,18 +317,20 @@ class Job:
         *,
         measure: bool = True,
         data: bytes | None = None,
-        decoded: tuple[np.ndarray, np.ndarray] | None = None,
+        decoded=None,
         chamfer: float | None = None,
         extra: dict | None = None,
     ) -> EncodeResult:
-        """The EncodeResult of a finished fit: bytes, the decoder's mesh and the summary statistics."""
-        from tetweave_codec.decoder import decode
+        """The EncodeResult of a finished fit: bytes, the decoder's mesh and the summary statistics. decoded: the
+        `decoder.DecodeResult` of `data` when the caller has it (rate control), else the file is decoded here."""
+        from tetweave_codec.decoder import decode_detailed
 
         t0 = time.perf_counter()
         data = self.pack(fin, ctx) if data is None else data
+        full = decode_detailed(data) if decoded is None else decoded
         if self.subdivision:
-            data, decoded, chamfer = self._kept_filter(data, chamfer)
-        out_v, out_f = decode(data) if decoded is None else decoded
+            data, full, chamfer = self._kept_filter(data, full, chamfer)
+        out_v, out_f = full.vertices, full.faces
         seconds = {**self.seconds, **ctx.seconds}
         seconds["extract"] = time.perf_counter() - t0
         seconds["total"] = time.perf_counter() - self.t_start

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -28,6 +29,9 @@ from tetweave_codec.fit.config import Quantization, default_quantization
 from tetweave_codec.fit.finish import FinishResult, complete, finalize, requantize
 from tetweave_codec.fit.loop import deterministic_torch
 from tetweave_codec.fit.step import FitContext
+
+if TYPE_CHECKING:
+    from tetweave_codec.decoder import DecodeResult
 
 # v2 bytes per fitted grid point at the default quantization (kept fraction x bits per kept point / 8), measured
 # with benchmarks/bitstream.py on the four development meshes before s prediction: 2.42-2.64 at 4K points,
@@ -97,13 +101,13 @@ class Candidate:
 @dataclass
 class Trial:
     """One full fit of a --max-error search at some point count: its context, finished symbols, bytes, the
-    decoded mesh's Chamfer distance to the input and the decoded mesh (vertices (V,3), faces (F,3))."""
+    decoded mesh's Chamfer distance to the input and the decoder's result (`decoder.DecodeResult`)."""
 
     ctx: FitContext
     result: FinishResult
     data: bytes
     error: float
-    decoded: tuple[np.ndarray, np.ndarray]
+    decoded: DecodeResult
 
 
 def bytes_per_point(points: int) -> float:
@@ -222,7 +226,7 @@ def encode_to_error(job, max_error: float):
     fit met it and one missed, the next interpolates between them. It stops when a fit lands in
     [CLOSE_ENOUGH, 1] x the target. Coarser steps are then tried on the smallest fit that met it.
     """
-    from tetweave_codec.decoder import decode
+    from tetweave_codec.decoder import decode_detailed
 
     if not (math.isfinite(max_error) and max_error > 0):
         raise InputError(f"the maximum error must be a positive number, got {max_error}")
@@ -248,7 +252,7 @@ def encode_to_error(job, max_error: float):
     # +58 % at 2e-3 / 1e-3); without F the bunny's 1e-3 fit missed once P was recalibrated.
     n = _clamp_points(prior / max(aim - FIRST_FIT_HOLE_SHARE * floor, 0.5 * aim))
     for _ in range(MAX_ERROR_FITS):
-        runs[n] = _fit_and_measure(job, n, default_quantization(n), decode)
+        runs[n] = _fit_and_measure(job, n, default_quantization(n), decode_detailed)
         met = sorted(k for k, r in runs.items() if r.error <= max_error)
         missed = sorted(k for k, r in runs.items() if r.error > max_error)
         if met and runs[met[0]].error >= CLOSE_ENOUGH * max_error:
@@ -276,7 +280,7 @@ def encode_to_error(job, max_error: float):
         raise InputError(
             f"could not reach a maximum error of {max_error:.3g}: {top:,} points reached {runs[top].error:.3g}"
         )
-    return _smallest_within(job, runs[met[0]], max_error, met[0], decode, _exponent(runs, PRIOR_ALPHA))
+    return _smallest_within(job, runs[met[0]], max_error, met[0], decode_detailed, _exponent(runs, PRIOR_ALPHA))
 
 
 def mesh_prior(job) -> tuple[float, float]:
@@ -292,7 +296,7 @@ def prior_error_points(job) -> float:
     from tetweave_codec.metrics import chamfer_distance
 
     v, f = job.normalized, job.f
-    base = PRIOR_BASE * (SUBDIVIDED_BASE_FACTOR if getattr(job, "subdivision", 0) else 1.0)
+    base = PRIOR_BASE * (SUBDIVIDED_BASE_FACTOR if job.subdivision else 1.0)
     if len(v) <= 2 * PRIOR_PROBE_VERTICES:  # already coarse: no detail beyond what a fit resolves
         return base
     reduction = 1.0 - 2.0 * PRIOR_PROBE_VERTICES / len(f)
@@ -365,14 +369,14 @@ def _exponent(runs: dict[int, Trial], default: float) -> float:
 
 
 def _fit_and_measure(job, points: int, quant: Quantization, decode) -> Trial:
-    """One full fit at `points`, packed, decoded and measured."""
+    """One full fit at `points`, packed, decoded (`decode`: bytes -> DecodeResult) and measured."""
     ctx, params = job.main_stage(points, quant)
     with deterministic_torch():
         fin = finalize(params, ctx, quant.position_bits)
         result = complete(fin, ctx, quant)
     data = job.pack(result, ctx)
     out = decode(data)
-    return Trial(ctx, result, data, job.chamfer(*out), out)
+    return Trial(ctx, result, data, job.chamfer(out.vertices, out.faces), out)
 
 
 def _smallest_within(job, run: Trial, max_error: float, points: int, decode, alpha: float):
@@ -388,7 +392,7 @@ def _smallest_within(job, run: Trial, max_error: float, points: int, decode, alp
         if len(trial_data) >= len(best[1]):
             continue
         trial_out = decode(trial_data)
-        trial_err = job.chamfer(*trial_out)
+        trial_err = job.chamfer(trial_out.vertices, trial_out.faces)
         if trial_err > max_error:
             break
         best = (trial, trial_data, trial_err, trial_out)
