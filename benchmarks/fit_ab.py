@@ -78,11 +78,12 @@ def run(args: argparse.Namespace) -> None:
                 smoothing=args.smoothing,
                 subdivision=args.subdivision,
                 sh_degree=args.sh_degree,
+                layout=args.layout,
             )
             stats = result.stats
             row = dict(
                 tag=args.tag, settings=changes, smoothing=args.smoothing, subdivision=args.subdivision,
-                sh_degree=args.sh_degree, mesh=name,
+                sh_degree=args.sh_degree, layout=args.layout, mesh=name,
                 size=parse_count(size),
                 seed=args.seed,
                 bytes=stats["bytes"], chamfer=stats["chamfer"], bxc=stats["bytes"] * stats["chamfer"],
@@ -132,6 +133,7 @@ def main(argv: list[str] | None = None) -> None:
     p_run.add_argument("--smoothing", type=int, default=None, help="Taubin steps (default: the encoder's)")
     p_run.add_argument("--subdivision", type=int, default=None, help="Loop levels (default: the encoder's)")
     p_run.add_argument("--sh-degree", type=int, default=1, help="SH degree of the fit (default: 1, the encoder's)")
+    p_run.add_argument("--layout", default="fit", help="where the points come from: fit or grid (encode's layout)")
     p_run.add_argument("--out", default="fit_ab.jsonl")
     p_cmp = sub.add_parser("compare", help="tabulate the rows of several variants")
     p_cmp.add_argument("rows")

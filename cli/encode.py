@@ -95,6 +95,16 @@ def _progress_lines(every_s: float = PROGRESS_LINE_SECONDS):
     help="Degree of the directional distances: none stores only s; higher places vertices more freely; auto: 1, "
     "none on inputs with sharp creases (CAD parts), where the coefficients cost more than they buy.",
 )
+@click.option(
+    "--layout",
+    type=click.Choice(["fit", "grid"]),
+    default="fit",
+    show_default=True,
+    help="Where the points come from: fit = placed by the fit, then snapped to the position grid; grid = the "
+    "centres of the grid cells in a band around the input, whose s the fit then tunes (cheaper points, no "
+    "placement: smaller files on some meshes, see benchmarks/results/grid_layout.md). With grid, --points sets "
+    "the cell size and the quantization is the layout's own.",
+)
 @quality_option
 @iters_option
 @click.option(
@@ -162,6 +172,7 @@ def encode(
     output: Path | None,
     points: int,
     sh_degree: str,
+    layout: str,
     quality: str,
     iters: int | None,
     size: int | None,
@@ -193,6 +204,7 @@ def encode(
     opts = EncodeOptions(
         points=points,
         sh_degree=sh_degree,
+        layout=layout,
         quality=quality,
         iters=iters,
         size=size,

@@ -27,7 +27,7 @@ from tetweave_codec.fit.config import (
     scaled_schedule,
     schedule_for,
 )
-from tetweave_codec.fit.finish import FinishResult, finish
+from tetweave_codec.fit.finish import Finalized, FinishResult, complete, finalize, finalize_cells, finish
 from tetweave_codec.fit.loop import FitResult, deterministic_torch
 from tetweave_codec.fit.step import FitContext, Params, ProgressFn
 from tetweave_codec.formats.common import MAX_SUBDIVISION
@@ -45,6 +45,9 @@ CREASED_SH_DEGREE = -1
 # Samples per mesh of the Chamfer distance in the summary: enough for ~1e-5 resolution in the normalized frame.
 SUMMARY_CHAMFER_SAMPLES = 100_000
 MAX_POINTS = 1 << 22
+# Where a file's points come from: "fit" places them by optimization (fit.loop), "grid" takes the cells of a band
+# around the input (fit.grid). Same container, same decoder.
+LAYOUTS = ("fit", "grid")
 
 
 @dataclass
@@ -105,6 +108,7 @@ def encode(
     max_error: float | None = None,
     smoothing: int | None = None,
     subdivision: int | None = None,
+    layout: str = "fit",
 ) -> EncodeResult:
     """Fit a TetWeave representation to a triangle mesh and return the `.tw` bytes and the decoded mesh.
 
@@ -124,6 +128,9 @@ def encode(
         `input_defaults`' choice for container version 2, 0 for version 1 (which cannot store it).
     subdivision: Loop levels 0-2 the decoder applies after the smoothing (the fit optimizes the subdivided
         surface); None = `input_defaults`' choice for container version 2, 0 for version 1.
+    layout: where the points come from (see LAYOUTS): "fit" (placed by the fit, then snapped to the grid) or
+        "grid" (the centres of the grid cells in a band around the input, fit.grid; container version 2 only).
+        With "grid", `points` sets the cell size (the band holds about that many points).
     Deterministic: the same input, options, seed, device and thread count give the same bytes.
     """
     v, f = _validate(vertices, faces)
@@ -140,6 +147,10 @@ def encode(
         raise InputError("--size and --max-error need container version 2")
     if size is not None and max_error is not None:
         raise InputError("give either a size or a maximum error, not both")
+    if layout not in LAYOUTS:
+        raise InputError(f"layout must be one of {', '.join(LAYOUTS)}, got {layout!r}")
+    if layout == "grid" and (container_version != 2 or quantization is not None):
+        raise InputError("the grid layout needs container version 2 and chooses its own quantization")
     if smoothing is not None and not 0 <= smoothing <= MAX_SMOOTHING_STEPS:
         raise InputError(f"smoothing must be 0-{MAX_SMOOTHING_STEPS} steps, got {smoothing}")
     if smoothing and container_version != 2:
@@ -168,6 +179,7 @@ def encode(
         scale_iterations=iters is None,
         smoothing=smoothing,
         subdivision=subdivision,
+        layout=layout,
     )
     if size is not None:
         from tetweave_codec.rate_control import encode_to_size
@@ -178,12 +190,13 @@ def encode(
 
         return encode_to_error(job, float(max_error))
     if container_version == 1:
-        quantization = None
-    elif quantization is None:
-        quantization = default_quantization(points)
-    ctx, params = job.main_stage(points, quantization)
+        ctx, params = job.main_stage(points, None)
+        with deterministic_torch():
+            fin = finish(params, ctx)
+        return job.result(fin, ctx, points, measure=measure)
+    ctx, fixed, quantization = job.stage(points, quantization)
     with deterministic_torch():
-        fin = finish(params, ctx)
+        fin = complete(fixed, ctx, quantization)
     return job.result(fin, ctx, points, measure=measure)
 
 
@@ -230,10 +243,11 @@ class Job:
         scale_iterations=True,
         smoothing=0,
         subdivision=0,
+        layout="fit",
     ):
         """scale_iterations: run `fit.config.scaled_schedule` of `schedule` for each point count (off when the
         caller fixed the iterations). smoothing, subdivision: the decoder's Taubin steps and Loop levels (stored
-        in the file)."""
+        in the file). layout: "fit" or "grid" (LAYOUTS)."""
         from tetweave_codec.meshio import normalize
 
         self.t_start = time.perf_counter()
@@ -243,7 +257,9 @@ class Job:
         self.device, self.seed, self.init, self.progress = device, seed, init, progress
         self.scale_iterations = scale_iterations
         self.smoothing, self.subdivision = smoothing, subdivision
+        self.layout = layout
         self.seconds: dict[str, float] = {}
+        self._band = None
 
     def config(self, points: int, quantization: Quantization | None) -> FitConfig:
         return FitConfig(
@@ -263,20 +279,71 @@ class Job:
 
         return fit_main(self.normalized, self.f, self.config(points, quantization), self.device, self.progress)
 
+    def stage(
+        self, points: int, quantization: Quantization | None = None
+    ) -> tuple[FitContext, Finalized, Quantization]:
+        """The fixed point set of a version-2 file of about `points` points, before the late stage: its context, the
+        Finalized points and their quantization. Fit layout: the main stage, then the grid of `quantization`
+        (default_quantization(points) when None). Grid layout: the band whose cells hold about `points` points."""
+        if self.layout == "grid":
+            from tetweave_codec.fit.grid import frame_for_cell
+
+            return self.grid_stage(frame_for_cell(self.grid_band().cell_for_points(points)))
+        quantization = default_quantization(points) if quantization is None else quantization
+        ctx, params = self.main_stage(points, quantization)
+        with deterministic_torch():
+            fixed = finalize(params, ctx, quantization.position_bits)
+        return ctx, fixed, quantization
+
+    def grid_band(self):
+        """The input prepared for the grid layout's band queries (`fit.grid.GridBand`), built once per job."""
+        from tetweave_codec.fit.grid import GridBand
+
+        if self._band is None:
+            t0 = time.perf_counter()
+            self._band = GridBand(self.normalized, self.f, seed=self.seed)
+            self.seconds["band"] = time.perf_counter() - t0
+        return self._band
+
+    def grid_quantization(self, frame, points: int) -> Quantization:
+        """The grid layout's quantization at `frame` (fit.grid.GridFrame): its stored bits, s step GRID_S_STEP lattice
+        cells (grid frame), the default c steps for `points`."""
+        from tetweave_codec.fit.grid import GRID_S_STEP, lattice_cell
+
+        base = default_quantization(points)
+        return Quantization(frame.stored_bits, GRID_S_STEP * lattice_cell(frame.bits), base.c_band_steps)
+
+    def grid_stage(self, frame) -> tuple[FitContext, Finalized, Quantization]:
+        """The grid layout's fixed points at `frame` (fit.grid.GridFrame), s the signed distance, c zero; the
+        context is that of a fit in the grid frame (the normalized frame x frame.frame_scale)."""
+        from tetweave_codec.fit.loop import prepare
+        from tetweave_codec.fit.step import noop_progress
+        from tetweave_codec.geometry.sh import num_coeffs
+
+        t0 = time.perf_counter()
+        cells, s = self.grid_band().cells(frame)
+        quant = self.grid_quantization(frame, len(cells))
+        with deterministic_torch():
+            ctx = prepare(
+                self.normalized * frame.frame_scale,
+                self.f,
+                self.config(len(cells), quant),
+                self.device,
+                self.progress or noop_progress,
+            )
+        ctx.frame_scale = frame.frame_scale
+        c = np.zeros((len(cells), num_coeffs(self.sh_degree)), dtype=np.float32)
+        fixed = finalize_cells(cells, s.astype(np.float32), c, frame.stored_bits, ctx.backend)
+        ctx.seconds["grid"] = time.perf_counter() - t0
+        return ctx, fixed, quant
+
     def pack(self, fin: FinishResult, ctx: FitContext) -> bytes:
-        return pack_result(
-            FitResult(
-                fin,
-                self.sh_degree,
-                ctx.backend,
-                ctx.seconds,
-                ctx.history,
-                ctx.config.smoothing,
-                ctx.config.subdivision,
-            ),
-            self.scale,
-            self.offset,
-        )
+        return self.pack_as(fin, ctx.backend, ctx.frame_scale, ctx.config.smoothing, ctx.config.subdivision)
+
+    def pack_as(self, fin: FinishResult, backend: str, frame_scale: float, smoothing: int, subdivision: int) -> bytes:
+        """The bytes of `fin` for a fit in the frame normalized x frame_scale (the transform divides it out)."""
+        result = FitResult(fin, self.sh_degree, backend, {}, [], smoothing, subdivision)
+        return pack_result(result, self.scale / frame_scale, self.offset)
 
     def _kept_filter(self, data: bytes, full, chamfer: float | None):
         """(bytes, DecodeResult, Chamfer or None) of the file to keep, given `full`, the decoder's result for `data`.

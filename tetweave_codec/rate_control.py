@@ -29,6 +29,7 @@ from tetweave_codec.fit.config import Quantization, default_quantization
 from tetweave_codec.fit.finish import FinishResult, complete, finalize, requantize
 from tetweave_codec.fit.loop import deterministic_torch
 from tetweave_codec.fit.step import FitContext
+from tetweave_codec.formats import quantize as Q
 
 if TYPE_CHECKING:
     from tetweave_codec.decoder import DecodeResult
@@ -146,6 +147,8 @@ def encode_to_size(job, size: int, *, measure: bool = True):
             f"(~{largest:,} bytes); use --points for larger files"
         )
     points = max(points, MIN_RATE_POINTS)
+    if job.layout == "grid":
+        return _grid_to_size(job, size, measure)
     base = default_quantization(points)
     ctx, params = job.main_stage(points, base)
 
@@ -184,6 +187,61 @@ def encode_to_size(job, size: int, *, measure: bool = True):
             f"({result.s.shape[0]:,} points); try another size or --points"
         )
     extra = {"target_bytes": size, "rate_control": f"{points} points, b {bits}, steps x{scale:g}"}
+    return job.result(result, ctx, points, measure=measure, data=data, extra=extra)
+
+
+def _grid_to_size(job, size: int, measure: bool):
+    """--size with the grid layout (fit.grid): the cell size whose band, s its signed distance quantized with the
+    grid's steps, packs closest below SIZE_AIM * size (secant steps in log-log: bytes fall about as cell^-2; each
+    estimate is a band query and a pack, no fit), then the late stage and the step nudging of `_fit_band`."""
+    from tetweave_codec.fit.grid import GRID_SIZE_SEARCH_STEPS, frame_for_cell
+    from tetweave_codec.geometry.delaunay import resolve_backend
+    from tetweave_codec.geometry.sh import num_coeffs
+
+    band = job.grid_band()
+    backend = resolve_backend("auto")
+    aim = SIZE_AIM * size
+
+    def estimate(cell: float) -> tuple[int, int]:
+        frame = frame_for_cell(cell)
+        cells, s = band.cells(frame)
+        if len(cells) < 4:
+            return 0, len(cells)
+        quant = job.grid_quantization(frame, len(cells))
+        c = np.zeros((len(cells), num_coeffs(job.sh_degree)))
+        fin = requantize(Q.dequantize_positions(cells, frame.stored_bits), cells, s, c, quant, job.sh_degree)
+        return len(job.pack_as(fin, backend, frame.frame_scale, job.smoothing, job.subdivision)), len(cells)
+
+    cell = math.sqrt(band.area / max(aim, 1.0))  # ~1 byte per point, ~2 band cells per cell^2 of area
+    tried: dict[float, tuple[int, int]] = {}
+    for _ in range(GRID_SIZE_SEARCH_STEPS):
+        tried[cell] = estimate(cell)
+        est = tried[cell][0]
+        if est <= 0 or abs(math.log(est / aim)) < 0.02:
+            break
+        cell *= math.sqrt(est / aim)
+    under = [c for c, (est, n) in tried.items() if 0 < est <= aim and n <= MAX_RATE_POINTS]
+    cell = max(under, key=lambda c: tried[c][0]) if under else min(tried, key=lambda c: abs(tried[c][0] - aim))
+    points = tried[cell][1]
+    if points > MAX_RATE_POINTS:
+        raise InputError(
+            f"a size of {size:,} bytes needs more than the {MAX_RATE_POINTS:,} points rate control fits; "
+            "use --points for larger files"
+        )
+    ctx, fin, quant = job.grid_stage(frame_for_cell(cell))
+    with deterministic_torch():
+        result = complete(fin, ctx, quant)
+    data = job.pack(result, ctx)
+    result, data = _fit_band(job, ctx, result, data, size)
+    if not SIZE_FLOOR * size <= len(data) <= size:
+        raise InputError(
+            f"could not meet a size of {size:,} bytes: the closest file has {len(data):,} bytes "
+            f"({result.s.shape[0]:,} points); try another size or --points"
+        )
+    extra = {
+        "target_bytes": size,
+        "rate_control": f"grid layout, {points} points, b {quant.position_bits}, frame x{ctx.frame_scale:.4g}",
+    }
     return job.result(result, ctx, points, measure=measure, data=data, extra=extra)
 
 
@@ -370,9 +428,8 @@ def _exponent(runs: dict[int, Trial], default: float) -> float:
 
 def _fit_and_measure(job, points: int, quant: Quantization, decode) -> Trial:
     """One full fit at `points`, packed, decoded (`decode`: bytes -> DecodeResult) and measured."""
-    ctx, params = job.main_stage(points, quant)
+    ctx, fin, quant = job.stage(points, quant)
     with deterministic_torch():
-        fin = finalize(params, ctx, quant.position_bits)
         result = complete(fin, ctx, quant)
     data = job.pack(result, ctx)
     out = decode(data)

@@ -38,7 +38,9 @@ class FitContext:
     config: the settings. targets: renders of the input (None when no loss or resampling looks at them).
     surface: the 3-D Chamfer term (None when weighted 0). backend: the Delaunay backend the decoder will use.
     generator: the one RNG of the fit (seeded by config.seed). history: (stage, iteration, loss) samples.
-    seconds: wall time per stage. topology: the last marching-tets topology (see `extract`).
+    seconds: wall time per stage. topology: the last marching-tets topology (see `extract`). frame_scale: the fit's
+    frame is the normalized frame scaled by it (1 but for the grid layout, fit.grid; the file's transform divides
+    it out).
     """
 
     config: FitConfig
@@ -51,6 +53,7 @@ class FitContext:
     history: list[tuple[str, int, float]] = field(default_factory=list)
     seconds: dict[str, float] = field(default_factory=dict)
     topology: TopologyCache = field(default_factory=lambda: TopologyCache())
+    frame_scale: float = 1.0
 
     def random_views(self) -> Tensor | None:
         """Indices of this iteration's target views (None when the fit renders nothing)."""

@@ -47,12 +47,14 @@ class EncodeOptions:
 
     sh_degree: "auto", "none" or "0".."3". size: target bytes; max_error: target Chamfer distance (rate control).
     format_version: 1 or 2. position_bits / s_step / c_step: v2 quantization overrides (None = the defaults for
-    `points`). smoothing, subdivision: the decoder's Taubin steps and Loop levels (None = the encoder's
-    default). threads: torch CPU threads (0 = torch's default). measure: compute the Chamfer distance.
+    `points`; not with the grid layout, which has its own). smoothing, subdivision: the decoder's Taubin steps and
+    Loop levels (None = the encoder's default). layout: "fit" or "grid" (encoder.LAYOUTS). threads: torch CPU
+    threads (0 = torch's default). measure: compute the Chamfer distance.
     """
 
     points: int = 16384
     sh_degree: str = "auto"
+    layout: str = "fit"
     quality: str = "default"
     iters: int | None = None
     size: int | None = None
@@ -74,8 +76,12 @@ class EncodeOptions:
     def encoder_kwargs(self, device) -> dict:
         """Keyword arguments of `tetweave_codec.encoder.encode` (device: the resolved torch.device); the one
         translation of these options, shared by single-file `tetweave encode` and every batch worker."""
+        from tetweave_codec.errors import InputError
         from tetweave_codec.fit.config import default_quantization
 
+        overrides = (self.position_bits, self.s_step, self.c_step)
+        if self.layout == "grid" and any(x is not None for x in overrides):
+            raise InputError("the grid layout chooses its own quantization: drop --position-bits, --s-step, --c-step")
         quant = default_quantization(self.points)
         if self.position_bits is not None:
             quant = replace(quant, position_bits=self.position_bits)
@@ -91,7 +97,8 @@ class EncodeOptions:
             device=device,
             seed=self.seed,
             container_version=int(self.format_version),
-            quantization=quant,
+            quantization=quant if self.layout == "fit" else None,
+            layout=self.layout,
             size=self.size,
             max_error=self.max_error,
             measure=self.measure,
