@@ -24,7 +24,15 @@ from tetweave_codec.metrics.summary import evaluate, mesh_report
 
 # Result columns in CSV order. Distances are in the input's normalized frame (see tetweave_codec.metrics.fidelity).
 ID_COLUMNS = ["mesh", "family", "curve", "setting"]
-PARAM_COLUMNS = ["quantization_bits", "keep_fraction", "points", "target_bytes", "sh_degree", "points_stored"]
+PARAM_COLUMNS = [
+    "quantization_bits",
+    "keep_fraction",
+    "points",
+    "target_bytes",
+    "sh_degree",
+    "layout",
+    "points_stored",
+]
 SIZE_COLUMNS = ["bytes", "bits_per_vertex", "encode_s", "decode_s", "metrics_s"]
 FIDELITY_COLUMNS = [
     "chamfer",
@@ -332,7 +340,8 @@ def precompute(paths: Sequence[Path], methods: Sequence[Method], executor, threa
         for k, m in enumerate(fits):
             options = EncodeOptions(
                 points=m.points,
-                sh_degree=str(m.sh_degree),
+                sh_degree="auto" if m.sh_degree is None else str(m.sh_degree),
+                layout=m.layout,
                 quality=m.quality,
                 iters=m.iters,
                 size=m.size,

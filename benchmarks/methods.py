@@ -74,6 +74,8 @@ class TetweaveMethod(Method):
     points: grid points during the fit; sh_degree 0..3, or None for the encoder's choice (`input_defaults`: 1,
     none on inputs with sharp creases); quality/iters/device/seed as in `tetweave encode`.
     size: a target file size in bytes (rate control, `tetweave encode --size`) instead of a point count.
+    layout: where the points come from, "fit" or "grid" (`tetweave encode --layout`; the grid's curve and settings
+    say so, the fit's keep their names).
     progress: optional fit progress callback, passed to the encoder unchanged.
     """
 
@@ -89,8 +91,10 @@ class TetweaveMethod(Method):
         seed: int = 0,
         progress: Callable | None = None,
         size: int | None = None,
+        layout: str = "fit",
     ) -> None:
         self.size = None if size is None else int(size)
+        self.layout = layout
         self.points = int(points)
         self.sh_degree = None if sh_degree is None else int(sh_degree)
         self.quality = quality
@@ -101,7 +105,8 @@ class TetweaveMethod(Method):
 
     @property
     def _sh(self) -> str:
-        return "sh auto" if self.sh_degree is None else f"sh{self.sh_degree}"
+        sh = "sh auto" if self.sh_degree is None else f"sh{self.sh_degree}"
+        return sh if self.layout == "fit" else f"{sh} {self.layout}"
 
     @property
     def setting(self) -> str:
@@ -115,7 +120,7 @@ class TetweaveMethod(Method):
 
     def params(self) -> dict:
         degree = "auto" if self.sh_degree is None else self.sh_degree
-        return {"points": self.points, "sh_degree": degree, "target_bytes": self.size or ""}
+        return {"points": self.points, "sh_degree": degree, "target_bytes": self.size or "", "layout": self.layout}
 
     def encode(self, vertices: np.ndarray, faces: np.ndarray) -> bytes:
         from tetweave_codec.encoder import encode
@@ -132,6 +137,7 @@ class TetweaveMethod(Method):
             progress=self.progress,
             measure=False,  # the benchmark measures the decoded mesh itself
             size=self.size,
+            layout=self.layout,
         )
         self.points_used = result.stats["points_target"]
         return result.data

@@ -77,6 +77,17 @@ def _degrees(ctx, param, value: str) -> list[int | None]:
     return out
 
 
+def _layouts(ctx, param, value: str) -> list[str]:
+    """--layout: comma-separated layouts of the encoder (encoder.LAYOUTS)."""
+    from tetweave_codec.encoder import LAYOUTS
+
+    out = list(dict.fromkeys(_split(value)))
+    bad = [x for x in out if x not in LAYOUTS]
+    if bad or not out:
+        raise click.BadParameter(f"layouts are {', '.join(LAYOUTS)}, comma-separated; got {value!r}")
+    return out
+
+
 def _fractions(ctx, param, value: str) -> list[float]:
     try:
         out = [float(t.rstrip("%")) / (100.0 if t.endswith("%") else 1.0) for t in _split(value)]
@@ -128,6 +139,7 @@ def _command_line(p: dict) -> str:
             *(["--sizes", join(p["sizes"])] if p["sizes"] else []),
             "--sh-degree",
             ",".join("auto" if d is None else str(d) for d in p["sh_degrees"]),
+            *(["--layout", ",".join(p["layouts"])] if p["layouts"] != ["fit"] else []),
             "--quality",
             p["quality"],
         ]
@@ -180,6 +192,13 @@ def _command_line(p: dict) -> str:
     callback=_degrees,
     help="tetweave SH degrees, comma-separated, 0-3 or auto (the encoder's choice: 1, none on inputs with sharp "
     "creases); every degree runs at every --points.",
+)
+@click.option(
+    "--layout",
+    "layouts",
+    default="fit",
+    callback=_layouts,
+    help="tetweave layouts, comma-separated: fit and/or grid (see tetweave encode --layout); each is its own curve.",
 )
 @quality_option
 @iters_option
@@ -234,6 +253,7 @@ def bench(
     points: list[int],
     sizes: list[int],
     sh_degrees: list[int | None],
+    layouts: list[str],
     quality: str,
     iters: int | None,
     draco_bits: list[int],
@@ -308,9 +328,11 @@ def bench(
                 iters=iters,
                 device=device,
                 seed=seed,
-                progress=_fit_progress(say, f"tetweave {label} {'sh auto' if d is None else f'sh{d}'}"),
+                progress=_fit_progress(say, f"tetweave {label} {'sh auto' if d is None else f'sh{d}'} {layout}"),
                 size=s,
+                layout=layout,
             )
+            for layout in layouts
             for d in sh_degrees
             for n, s, label in runs
         ]

@@ -499,3 +499,20 @@ def test_bench_tetweave_encodes_through_the_runner(mesh_dir):
     in_process = method.encode(*sphere(1.0, 40))
     assert rows[0]["bytes"] == len(in_process)
     assert in_process in [r["data"] for r in methods[1].results.values()]
+
+
+def test_bench_runner_passes_auto_degree_and_grid_layout(mesh_dir):
+    """The runner path (`--jobs`) of a method with the encoder's SH choice (None) and the grid layout: the worker's
+    options read back as the method's, so its bytes are those of the in-process encode."""
+    import torch
+
+    from tetweave_codec.benchmarks.batch import precompute
+    from tetweave_codec.runner.executors import LocalExecutor
+
+    paths = find_meshes(mesh_dir)[:1]
+    method = TetweaveMethod(300, sh_degree=None, quality="fast", iters=4, device="cpu", seed=0, layout="grid")
+    assert "grid" in method.curve and "grid" in method.setting and method.params()["layout"] == "grid"
+    (pre,) = precompute(paths, [method], LocalExecutor(1), torch.get_num_threads())
+    (row,) = [r for r in run_batch(paths, [pre], OPTIONS) if r["family"] == "tetweave"]
+    assert row["error"] == "" and row["watertight"] and row["layout"] == "grid"
+    assert row["bytes"] == len(method.encode(*sphere(1.0, 40)))
