@@ -82,7 +82,7 @@ def test_band_cells_of_a_sphere_are_the_brute_force_band(frame):
     v, f = sphere(96)
     nv = normalize(v)[0]
     band = GridBand(nv, f)
-    cells, s = band.cells(frame, refine=0)
+    cells, s = band.cells(frame)
     k, cell = frame.frame_scale, lattice_cell(frame.bits)
     # brute force over the box around the sphere (grid frame), by the analytic distance
     lo = max(int(math.floor((-k - 2 * cell + Q.GRID_BOUND) / cell)), 0)
@@ -100,50 +100,9 @@ def test_band_cells_of_a_sphere_are_the_brute_force_band(frame):
     np.testing.assert_allclose(s, analytic, atol=3e-3 * k)
     assert np.all(np.sign(s) == np.sign(analytic)) or np.all(np.abs(analytic[np.sign(s) != np.sign(analytic)]) < 3e-3)
     np.testing.assert_array_equal(Q.canonical_order(cells, frame.stored_bits), np.arange(len(cells)))
-    again = GridBand(nv, f).cells(frame, refine=0)
+    again = GridBand(nv, f).cells(frame)
     np.testing.assert_array_equal(again[0], cells)
     np.testing.assert_array_equal(again[1], s)
-
-
-def pin() -> tuple[np.ndarray, np.ndarray]:
-    """A ball with a thin pin through it: the pin is thinner than the lattice cells used below."""
-    ball = manifold3d.Manifold.sphere(0.7, 64)
-    rod = manifold3d.Manifold.cylinder(2.0, 0.03, 0.03, 24, center=True)
-    return _mesh(ball + rod)
-
-
-def test_refinement_puts_children_where_the_lattice_misses_the_input():
-    v, f = pin()
-    nv = normalize(v)[0]
-    band = GridBand(nv, f)
-    frame = GridFrame(5, 1.0)
-    coarse, coarse_s = band.lattice(frame)
-    err = band.errors(frame, coarse, coarse_s)
-    cells, s = band.cells(frame, refine=0.1)
-    assert len(np.unique(cells, axis=0)) == len(cells)
-    np.testing.assert_array_equal(Q.canonical_order(cells, frame.stored_bits), np.arange(len(cells)))
-    # the worst tenth of the lattice is refined: its cells are replaced by their children (Y << 1 of the stored
-    # grid; child 0 sits where its parent's point was), the others are stored as they were (X << 2)
-    chosen = np.zeros(len(coarse), dtype=bool)
-    chosen[np.argsort(-err, kind="stable")[: int(math.ceil(0.1 * len(coarse)))]] = True
-    rows = {tuple(c): i for i, c in enumerate(cells)}
-    kept = [rows[tuple(c)] for c in coarse[~chosen] << GRID_SPREAD]  # every unrefined cell is there
-    fine = np.ones(len(cells), dtype=bool)
-    fine[kept] = False
-    np.testing.assert_array_equal(s[kept], coarse_s[~chosen])
-    assert fine.any() and not (cells[fine] % 2).any()
-    parents = {tuple(c) for c in cells[fine] >> GRID_SPREAD}
-    assert parents <= {tuple(c) for c in coarse[chosen]}
-    # children lie within half the band's width; the pin (|x|, |y| < 0.03 / 0.7 * 0.9 in the normalized frame,
-    # far from the ball) is among the refined places
-    assert np.all(np.abs(s[fine]) < GRID_BAND * lattice_cell(frame.bits + 1))
-    centres = Q.dequantize_positions(cells[fine], frame.stored_bits) / frame.frame_scale
-    on_pin = (np.abs(centres[:, 2]) > 0.75) & (np.hypot(centres[:, 0], centres[:, 1]) < 0.1)
-    assert on_pin.sum() > 10
-    # the indicator: largest where the pin is
-    centres_c = Q.dequantize_positions(coarse << GRID_SPREAD, frame.stored_bits) / frame.frame_scale
-    pin_cells = (np.abs(centres_c[:, 2]) > 0.75) & (np.hypot(centres_c[:, 0], centres_c[:, 1]) < 0.1)
-    assert np.median(err[pin_cells]) > 3 * np.median(err[~pin_cells])
 
 
 def test_cell_for_points_hits_the_count():

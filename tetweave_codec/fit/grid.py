@@ -34,7 +34,12 @@ from tetweave_codec.geometry.triangles import face_areas, sample_surface
 # sheets (spot at b 7, band 0.6: 1.7 % of the vertices 0.06-0.27 away); 0.9 costs the same bytes at equal error
 # as 1.2 (stanford-bunny, b 6).
 GRID_BAND = 0.9
-# The s step in lattice cells (grid frame).
+# The s step in lattice cells (grid frame). Bytes x Chamfer of --size files against the fit layout's (fit_ab, one
+# thread; stanford-bunny 10k, spot 10k, igea 10k, stanford-bunny 5k, spot 20k, igea 5k), at 0.02 / 0.025 / 0.03:
+# 0.91 1.23 0.92 1.07 1.03 0.86 / 0.93 1.13 0.95 1.00 1.12 0.85 / 0.93 1.17 0.90 1.05 1.22 0.83 (medians 0.98 /
+# 0.97 / 0.99): within the +-15 % by which one cell size differs from the next on spot. 300 late iterations
+# instead of 150 changed nothing (0.99-1.04). Refining the worst 5-10 % of the lattice one level (commit cb804e8)
+# gave 0.91-1.11 against none: not kept.
 GRID_S_STEP = 0.025
 # The lattice is stored GRID_SPREAD bits finer than its own cells: lattice cell X is stored as cell X << GRID_SPREAD
 # of the 2^(bits + GRID_SPREAD) grid (its lower corner's child), which keeps the geometry (a shift of all points)
@@ -53,11 +58,8 @@ NORMALIZED_EXTENT = 0.9
 # are candidates): dense enough that every cell the surface crosses holds samples.
 SAMPLES_PER_CELL = 8.0
 MAX_SAMPLES = 4_000_000
-# Fraction of the lattice band's cells refined one level (GridBand.cells).
-GRID_REFINE = 0.15
 # Estimates (band query + pack) of rate control's search for the cell size of a --size file.
 GRID_SIZE_SEARCH_STEPS = 8
-_CHILDREN = np.array([(x, y, z) for x in (0, 1) for y in (0, 1) for z in (0, 1)], dtype=np.int64)
 _NEIGHBOURS = np.array([(x, y, z) for x in (-1, 0, 1) for y in (-1, 0, 1) for z in (-1, 0, 1)], dtype=np.int64)
 
 
@@ -117,102 +119,44 @@ class GridBand:
         self.area = float(face_areas(self.vertices, self.faces).sum())
         self.seed = seed
 
-    def _samples(self, frame: GridFrame) -> np.ndarray:
-        """Surface samples (n,3) in the grid frame, SAMPLES_PER_CELL per squared lattice cell (deterministic)."""
-        cell = lattice_cell(frame.bits)
-        n = int(min(MAX_SAMPLES, max(1000, SAMPLES_PER_CELL * self.area * (frame.frame_scale / cell) ** 2)))
-        return sample_surface(self.vertices, self.faces, n, self.seed)[0] * frame.frame_scale
+    def cells(self, frame: GridFrame, band: float = GRID_BAND) -> tuple[np.ndarray, np.ndarray]:
+        """The band's points as stored cells in canonical order, and the grid-frame signed distance at them.
 
-    def _near(self, frame: GridFrame, cand: np.ndarray, bits: int, width: float) -> tuple[np.ndarray, np.ndarray]:
-        """The lattice cells (M,3) at `bits` among `cand` whose point lies within `width` (grid frame) of the
-        surface, and the signed distance (grid frame) at their points."""
-        k = frame.frame_scale
-        centres = Q.dequantize_positions(cand << (frame.stored_bits - bits), frame.stored_bits) / k
-        sq, _, _ = self.tree.query(centres)
-        dist = np.sqrt(np.maximum(sq, 0.0)) * k
-        near = dist < width
-        cand, centres, dist = cand[near], centres[near], dist[near]
-        winding = igl.fast_winding_number(self.vertices, self.faces, centres) if len(cand) else np.zeros(0)
-        return cand, np.where(np.abs(winding) > INSIDE_WINDING, -dist, dist)
-
-    def lattice(self, frame: GridFrame, band: float = GRID_BAND) -> tuple[np.ndarray, np.ndarray]:
-        """The band of the frame's lattice: lattice cells X (N,3) int64 (lattice bits, ascending keys) whose point
-        lies within `band` lattice cells of the surface, and the grid-frame signed distance s (N,) there (negative
-        inside; normalized distances x frame_scale). Candidates are the cells of dense surface samples and their
-        neighbours (a cell the surface barely clips and no sample hits may be missed: the set is that of the
-        samples, deterministic for the seed)."""
+        Returns cells (N,3) int64 of the 2^stored_bits grid (lattice cells X << GRID_SPREAD) and s (N,) float64
+        (negative inside; grid-frame units, i.e. normalized distances x frame_scale). A lattice cell is in the band
+        when its point (the stored cell's centre) lies within `band` lattice cells of the surface; candidates are
+        the lattice cells of dense surface samples and their neighbours (a cell the surface barely clips and no
+        sample hits may be missed: the set is that of the samples, deterministic for the seed).
+        """
         bits, k = frame
         top = (1 << bits) - 1
-        cell = lattice_cell(bits)
+        cell = lattice_cell(bits)  # grid frame
+        n = int(min(MAX_SAMPLES, max(1000, SAMPLES_PER_CELL * self.area * (k / cell) ** 2)))
+        samples, _ = sample_surface(self.vertices, self.faces, n, self.seed)
         side = top + 3  # keys of cells padded by one on each side, so that neighbours never wrap
-        lattice = np.floor((np.concatenate([self._samples(frame), self.vertices * k]) + Q.GRID_BOUND) / cell)
+        lattice = np.floor((np.concatenate([samples, self.vertices]) * k + Q.GRID_BOUND) / cell)
         own = np.clip(lattice, 0, top).astype(np.int64) + 1
         keys = np.unique((own[:, 0] * side + own[:, 1]) * side + own[:, 2])
         offsets = (_NEIGHBOURS[:, 0] * side + _NEIGHBOURS[:, 1]) * side + _NEIGHBOURS[:, 2]
         keys = np.unique((keys[:, None] + offsets[None]).ravel())
         cand = np.stack([keys // (side * side), (keys // side) % side, keys % side], axis=1) - 1
-        cand = cand[((cand >= 0) & (cand <= top)).all(axis=1)]
-        return self._near(frame, cand, bits, band * cell)
-
-    def errors(self, frame: GridFrame, cells: np.ndarray, s: np.ndarray) -> np.ndarray:
-        """Where the lattice band (cells, s from `lattice`) misses the input: per lattice cell (N,), the largest
-        distance (grid frame) of an input sample in it to the unfiltered surface of (cells, s), and of a vertex of
-        that surface in it to the input. Thin parts and curved places score high."""
-        from tetweave_codec.decoder import mesh_from_points
-
-        bits, k = frame
-        cell = lattice_cell(bits)
-        points = Q.dequantize_positions(cells << GRID_SPREAD, frame.stored_bits)
-        v, f = mesh_from_points(points, s, None, -1)
-        err = np.zeros(len(cells))
-        if not len(f):
-            return err
-        samples = self._samples(frame)
-        to_surface = np.sqrt(np.maximum(SurfaceTree(v, f).query(samples)[0], 0.0))
-        to_input = np.sqrt(np.maximum(self.tree.query(v / k)[0], 0.0)) * k
-        side = (1 << bits) + 2
-        keys = (cells[:, 0] * side + cells[:, 1]) * side + cells[:, 2]  # ascending (lattice order)
-        for where, value in ((samples, to_surface), (v, to_input)):
-            at = np.floor((where + Q.GRID_BOUND) / cell).astype(np.int64)
-            key = (at[:, 0] * side + at[:, 1]) * side + at[:, 2]
-            row = np.minimum(np.searchsorted(keys, key), len(keys) - 1)
-            hit = keys[row] == key
-            np.maximum.at(err, row[hit], value[hit])
-        return err
-
-    def cells(
-        self, frame: GridFrame, band: float = GRID_BAND, refine: float | None = None
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """The grid layout's points as stored cells in canonical order, and the grid-frame signed distance at them.
-
-        The lattice band (`lattice`), of which the fraction `refine` (GRID_REFINE when None) of cells that miss the
-        input most (`errors`) is replaced by the band of their children, one lattice level finer (half the cell,
-        half the band's width): points where the input needs them. Returns cells (N,3) int64 of the
-        2^stored_bits grid (coarse X << GRID_SPREAD, children Y << GRID_SPREAD - 1: never the same cell) and s
-        (N,) float64.
-        """
-        refine = GRID_REFINE if refine is None else refine
-        cells, s = self.lattice(frame, band)
-        stored = cells << GRID_SPREAD
-        if refine > 0 and len(cells) >= 4 and frame.bits < MAX_LATTICE_BITS:
-            err = self.errors(frame, cells, s)
-            count = int(math.ceil(refine * len(cells)))
-            chosen = np.zeros(len(cells), dtype=bool)
-            chosen[np.argsort(-err, kind="stable")[:count]] = True
-            chosen &= err > 0
-            children = (cells[chosen][:, None, :] * 2 + _CHILDREN[None]).reshape(-1, 3)
-            fine, fine_s = self._near(frame, children, frame.bits + 1, band * lattice_cell(frame.bits + 1))
-            stored = np.concatenate([stored[~chosen], fine << (GRID_SPREAD - 1)])
-            s = np.concatenate([s[~chosen], fine_s])
-        order = Q.canonical_order(stored, frame.stored_bits)
-        return stored[order], s[order]
+        cand = cand[((cand >= 0) & (cand <= top)).all(axis=1)] << GRID_SPREAD
+        centres = Q.dequantize_positions(cand, frame.stored_bits) / k
+        sq, _, _ = self.tree.query(centres)
+        dist = np.sqrt(np.maximum(sq, 0.0)) * k
+        near = dist < band * cell
+        cand, centres, dist = cand[near], centres[near], dist[near]
+        winding = igl.fast_winding_number(self.vertices, self.faces, centres) if len(cand) else np.zeros(0)
+        s = np.where(np.abs(winding) > INSIDE_WINDING, -dist, dist)
+        order = Q.canonical_order(cand, frame.stored_bits)
+        return cand[order], s[order]
 
     def count(self, frame: GridFrame, band: float = GRID_BAND) -> int:
         return len(self.cells(frame, band)[0])
 
     def cell_for_points(self, points: int, band: float = GRID_BAND) -> float:
-        """The cell size (normalized frame) whose layout holds about `points` points: a few counts, secant steps
-        in log-log (the count falls about as cell^-2)."""
+        """The cell size (normalized frame) whose band holds about `points` cells: a few counts, secant steps in
+        log-log (the count falls about as cell^-2)."""
         cell = math.sqrt(2.0 * band * self.area / max(points, 1))
         for _ in range(6):
             got = self.count(frame_for_cell(cell), band)
