@@ -273,7 +273,9 @@ def _encode_one(mesh: Path, output: Path | None, opts, quiet: bool) -> None:
     if quiet:
         result = encode_mesh(vertices, faces, **options)
     elif sys.stderr.isatty() and size is None and max_error is None:  # rate control runs several fits
-        bar, callback = _progress_bar(schedule.main_iters + schedule.late_iters)
+        # the grid layout runs the late stage only (its point count is about --points)
+        iterations = schedule.late_iters + (schedule.main_iters if opts.layout == "fit" else 0)
+        bar, callback = _progress_bar(iterations)
         with bar:
             result = encode_mesh(vertices, faces, progress=callback, **options)
     else:
@@ -287,7 +289,8 @@ def _encode_one(mesh: Path, output: Path | None, opts, quiet: bool) -> None:
         f"wrote {output} ({st['bytes']:,} bytes, {8 * st['bytes'] / max(st['points_kept'], 1):.1f} bits per point, "
         f".tw v{st['container_version']}): {st['points_kept']:,} points kept of {st['points_target']:,}, "
         f"SH degree {'none' if st['sh_degree'] < 0 else st['sh_degree']}, "
-        f"{st['vertices']:,} vertices, {st['faces']:,} faces"
+        + ("grid layout, " if st.get("layout") == "grid" else "")
+        + f"{st['vertices']:,} vertices, {st['faces']:,} faces"
     )
     click.echo(f"Chamfer distance to the input (normalized frame): {chamfer}")
     if "target_bytes" in st:

@@ -194,3 +194,12 @@ def test_cli_grid_layout(tmp_path):
     assert res.exit_code == 2
     assert "grid layout" in res.output and "Traceback" not in res.output
     assert not bad.exists()
+
+
+def test_grid_size_beyond_its_point_cap_is_refused_before_any_fit(monkeypatch):
+    """The grid layout has its own cap (its late stage is cheaper than a fit); beyond it, one clear error."""
+    v, f = torus()
+    monkeypatch.setattr(rate_control, "GRID_MAX_RATE_POINTS", 500)
+    monkeypatch.setattr("tetweave_codec.fit.finish.late_stage", lambda *a, **k: pytest.fail("no fit expected"))
+    with pytest.raises(InputError, match="grid layout"):
+        encode(v, f, size=20000, layout="grid", **FAST)

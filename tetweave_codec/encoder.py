@@ -408,6 +408,7 @@ class Job:
             "quantization": fin.quantization,
             "points_target": points,
             "sh_degree": self.sh_degree,
+            "layout": self.layout,
             "quality": self.quality,
             "device": str(self.device),
             "vertices": int(len(out_v)),

@@ -44,6 +44,9 @@ SIZE_FLOOR = 0.85  # the smallest acceptable fraction of a size target
 SIZE_AIM = 0.93  # where the estimate before the late stage aims, inside [SIZE_FLOOR, 1]
 MIN_RATE_POINTS = 128
 MAX_RATE_POINTS = 65536  # the largest fit rate control runs (several minutes on 2 CPU cores)
+# The largest grid-layout --size file's point count: its late stage alone (~3 s per 1K points on 2 cores) is
+# cheaper than a fit, and its points are ~2x denser in bytes (a 40 KB fandisk needs 70K+).
+GRID_MAX_RATE_POINTS = 262144
 MIN_FILE_BYTES = 200  # below this no useful TetWeave file exists (header alone: ~73 bytes)
 # Prior of the error model err ~ PRIOR_ERROR_POINTS / N (normalized frame) before the input is looked at: N x
 # Chamfer of default-quality fits (benchmarks/results/rate_control.md) is 1.6-1.9 on fandisk, 2.3-2.5 on spot,
@@ -139,6 +142,8 @@ def encode_to_size(job, size: int, *, measure: bool = True):
     """The best file of at most `size` bytes (and at least SIZE_FLOOR * size) this fit can make."""
     if size < MIN_FILE_BYTES:
         raise InputError(f"a size of {size:,} bytes is below the smallest useful .tw file ({MIN_FILE_BYTES} bytes)")
+    if job.layout == "grid":
+        return _grid_to_size(job, size, measure)
     points = points_for_size(size)
     if points > MAX_RATE_POINTS:
         largest = int(MAX_RATE_POINTS * bytes_per_point(MAX_RATE_POINTS))
@@ -147,8 +152,6 @@ def encode_to_size(job, size: int, *, measure: bool = True):
             f"(~{largest:,} bytes); use --points for larger files"
         )
     points = max(points, MIN_RATE_POINTS)
-    if job.layout == "grid":
-        return _grid_to_size(job, size, measure)
     base = default_quantization(points)
     ctx, params = job.main_stage(points, base)
 
@@ -220,13 +223,13 @@ def _grid_to_size(job, size: int, measure: bool):
         if est <= 0 or abs(math.log(est / aim)) < 0.02:
             break
         cell *= math.sqrt(est / aim)
-    under = [c for c, (est, n) in tried.items() if 0 < est <= aim and n <= MAX_RATE_POINTS]
+    under = [c for c, (est, n) in tried.items() if 0 < est <= aim and n <= GRID_MAX_RATE_POINTS]
     cell = max(under, key=lambda c: tried[c][0]) if under else min(tried, key=lambda c: abs(tried[c][0] - aim))
     points = tried[cell][1]
-    if points > MAX_RATE_POINTS:
+    if points > GRID_MAX_RATE_POINTS:
         raise InputError(
-            f"a size of {size:,} bytes needs more than the {MAX_RATE_POINTS:,} points rate control fits; "
-            "use --points for larger files"
+            f"a size of {size:,} bytes needs more than the {GRID_MAX_RATE_POINTS:,} points rate control fits in "
+            "the grid layout; use --points for larger files"
         )
     ctx, fin, quant = job.grid_stage(frame_for_cell(cell))
     with deterministic_torch():
