@@ -97,13 +97,15 @@ def _progress_lines(every_s: float = PROGRESS_LINE_SECONDS):
 )
 @click.option(
     "--layout",
-    type=click.Choice(["fit", "grid"]),
+    type=click.Choice(["fit", "grid", "best"]),
     default="fit",
     show_default=True,
     help="Where the points come from: fit = placed by the fit, then snapped to the position grid; grid = the "
-    "centres of the grid cells in a band around the input, whose s the fit then tunes (cheaper points, no "
-    "placement: smaller files on some meshes, see benchmarks/results/grid_layout.md). With grid, --points sets "
-    "the cell size and the quantization is the layout's own.",
+    "cells of a lattice in a band around the input, whose s the fit then tunes (cheaper points, no placement: "
+    "smaller files on evenly detailed scans, larger on most other meshes, half the encode time, slower decode; "
+    "benchmarks/results/grid_layout.md); best = both, keeping the lower error (--size) or the smaller file "
+    "(--max-error), at the time of both. With grid, --points sets the cell size; grid and best choose their own "
+    "quantization.",
 )
 @quality_option
 @iters_option
@@ -274,7 +276,7 @@ def _encode_one(mesh: Path, output: Path | None, opts, quiet: bool) -> None:
         result = encode_mesh(vertices, faces, **options)
     elif sys.stderr.isatty() and size is None and max_error is None:  # rate control runs several fits
         # the grid layout runs the late stage only (its point count is about --points)
-        iterations = schedule.late_iters + (schedule.main_iters if opts.layout == "fit" else 0)
+        iterations = schedule.late_iters + (schedule.main_iters if opts.layout != "grid" else 0)
         bar, callback = _progress_bar(iterations)
         with bar:
             result = encode_mesh(vertices, faces, progress=callback, **options)
@@ -289,7 +291,7 @@ def _encode_one(mesh: Path, output: Path | None, opts, quiet: bool) -> None:
         f"wrote {output} ({st['bytes']:,} bytes, {8 * st['bytes'] / max(st['points_kept'], 1):.1f} bits per point, "
         f".tw v{st['container_version']}): {st['points_kept']:,} points kept of {st['points_target']:,}, "
         f"SH degree {'none' if st['sh_degree'] < 0 else st['sh_degree']}, "
-        + ("grid layout, " if st.get("layout") == "grid" else "")
+        + (f"{st['layout']} layout, " if st.get("layout", "fit") != "fit" else "")
         + f"{st['vertices']:,} vertices, {st['faces']:,} faces"
     )
     click.echo(f"Chamfer distance to the input (normalized frame): {chamfer}")

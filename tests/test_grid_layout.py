@@ -203,3 +203,33 @@ def test_grid_size_beyond_its_point_cap_is_refused_before_any_fit(monkeypatch):
     monkeypatch.setattr("tetweave_codec.fit.finish.late_stage", lambda *a, **k: pytest.fail("no fit expected"))
     with pytest.raises(InputError, match="grid layout"):
         encode(v, f, size=20000, layout="grid", **FAST)
+
+
+def test_best_layout_keeps_the_better_file():
+    """--layout best: both layouts at the size, the lower Chamfer distance kept, both reported."""
+    v, f = torus()
+    size = 4000
+    fit = encode(v, f, size=size, layout="fit", **FAST)
+    grid = encode(v, f, size=size, layout="grid", **FAST)
+    best = encode(v, f, size=size, layout="best", **FAST)
+    winner = fit if fit.stats["chamfer"] <= grid.stats["chamfer"] else grid
+    assert best.data == winner.data
+    assert best.stats["layout"] == winner.stats["layout"]
+    assert best.stats["layouts"] == {
+        "fit": {"bytes": len(fit.data), "chamfer": fit.stats["chamfer"]},
+        "grid": {"bytes": len(grid.data), "chamfer": grid.stats["chamfer"]},
+    }
+    assert best.stats["rate_control"].startswith(f"best layout {winner.stats['layout']}")
+    dv, df = decode(best.data)
+    np.testing.assert_array_equal(dv, best.vertices)
+    np.testing.assert_array_equal(df, best.faces)
+
+
+def test_best_layout_needs_a_target_and_survives_one_failing_layout(monkeypatch):
+    v, f = torus()
+    with pytest.raises(InputError, match="best layout"):
+        encode(v, f, points=1000, layout="best", **FAST)
+    # the grid layout cannot meet this size (cap): the fit layout's file is kept, the grid's failure reported
+    monkeypatch.setattr(rate_control, "GRID_MAX_RATE_POINTS", 100)
+    best = encode(v, f, size=3000, layout="best", **FAST)
+    assert best.stats["layout"] == "fit" and "grid layout" in best.stats["layouts"]["grid"]["error"]

@@ -46,8 +46,9 @@ CREASED_SH_DEGREE = -1
 SUMMARY_CHAMFER_SAMPLES = 100_000
 MAX_POINTS = 1 << 22
 # Where a file's points come from: "fit" places them by optimization (fit.loop), "grid" takes the cells of a band
-# around the input (fit.grid). Same container, same decoder.
-LAYOUTS = ("fit", "grid")
+# around the input (fit.grid), "best" encodes both (rate control only) and keeps the better file: the lower error
+# for --size, the smaller file for --max-error. Same container, same decoder.
+LAYOUTS = ("fit", "grid", "best")
 
 
 @dataclass
@@ -128,9 +129,10 @@ def encode(
         `input_defaults`' choice for container version 2, 0 for version 1 (which cannot store it).
     subdivision: Loop levels 0-2 the decoder applies after the smoothing (the fit optimizes the subdivided
         surface); None = `input_defaults`' choice for container version 2, 0 for version 1.
-    layout: where the points come from (see LAYOUTS): "fit" (placed by the fit, then snapped to the grid) or
-        "grid" (the centres of the grid cells in a band around the input, fit.grid; container version 2 only).
-        With "grid", `points` sets the cell size (the band holds about that many points).
+    layout: where the points come from (see LAYOUTS): "fit" (placed by the fit, then snapped to the grid),
+        "grid" (the cells of a lattice in a band around the input, fit.grid; container version 2 only; `points`
+        sets the cell size: the band holds about that many points) or "best" (with `size` or `max_error` only:
+        both, and the better file).
     Deterministic: the same input, options, seed, device and thread count give the same bytes.
     """
     v, f = _validate(vertices, faces)
@@ -149,8 +151,10 @@ def encode(
         raise InputError("give either a size or a maximum error, not both")
     if layout not in LAYOUTS:
         raise InputError(f"layout must be one of {', '.join(LAYOUTS)}, got {layout!r}")
-    if layout == "grid" and (container_version != 2 or quantization is not None):
-        raise InputError("the grid layout needs container version 2 and chooses its own quantization")
+    if layout != "fit" and (container_version != 2 or quantization is not None):
+        raise InputError(f"the {layout} layout needs container version 2 and chooses its own quantization")
+    if layout == "best" and size is None and max_error is None:
+        raise InputError("the best layout compares the two layouts' files at a --size or --max-error")
     if smoothing is not None and not 0 <= smoothing <= MAX_SMOOTHING_STEPS:
         raise InputError(f"smoothing must be 0-{MAX_SMOOTHING_STEPS} steps, got {smoothing}")
     if smoothing and container_version != 2:
@@ -166,21 +170,27 @@ def encode(
         smoothing = chosen.smoothing if smoothing is None else smoothing
         subdivision = chosen.subdivision if subdivision is None else subdivision
         sh_degree = chosen.sh_degree if sh_degree is None else sh_degree
-    job = Job(
-        v,
-        f,
-        sh_degree,
-        schedule_for(quality, iters),
-        quality,
-        resolve_device(device),
-        seed,
-        init,
-        progress,
-        scale_iterations=iters is None,
-        smoothing=smoothing,
-        subdivision=subdivision,
-        layout=layout,
-    )
+
+    def make_job(layout: str) -> Job:
+        return Job(
+            v,
+            f,
+            sh_degree,
+            schedule_for(quality, iters),
+            quality,
+            resolve_device(device),
+            seed,
+            init,
+            progress,
+            scale_iterations=iters is None,
+            smoothing=smoothing,
+            subdivision=subdivision,
+            layout=layout,
+        )
+
+    if layout == "best":
+        return _best_layout(make_job, size, max_error)
+    job = make_job(layout)
     if size is not None:
         from tetweave_codec.rate_control import encode_to_size
 
@@ -198,6 +208,44 @@ def encode(
     with deterministic_torch():
         fin = complete(fixed, ctx, quantization)
     return job.result(fin, ctx, points, measure=measure)
+
+
+def _best_layout(make_job, size: int | None, max_error: float | None) -> EncodeResult:
+    """Rate control in both layouts; the file with the lower Chamfer distance (--size) or the fewer bytes
+    (--max-error). A layout that cannot meet the target is skipped; when neither can, the fit layout's error is
+    raised. The stats say which layout won and what each gave ("layouts")."""
+    from tetweave_codec.rate_control import encode_to_error, encode_to_size
+
+    t0 = time.perf_counter()
+    results: dict[str, EncodeResult] = {}
+    failures: dict[str, InputError] = {}
+    for name in ("fit", "grid"):
+        try:
+            job = make_job(name)
+            if size is not None:
+                results[name] = encode_to_size(job, int(size), measure=True)
+            else:
+                results[name] = encode_to_error(job, float(max_error))
+        except InputError as exc:
+            failures[name] = exc
+    if not results:
+        raise failures["fit"]
+    if size is not None:
+        best = min(results, key=lambda k: (results[k].stats["chamfer"], len(results[k].data)))
+    else:
+        best = min(results, key=lambda k: (len(results[k].data), results[k].stats["chamfer"]))
+    chosen = results[best]
+    tried = {k: {"bytes": len(r.data), "chamfer": r.stats["chamfer"]} for k, r in results.items()}
+    tried.update({k: {"error": str(exc)} for k, exc in failures.items()})
+    others = ", ".join(
+        f"{k}: {t['bytes']:,} B at {t['chamfer']:.3g}" if "bytes" in t else f"{k}: {t['error']}"
+        for k, t in tried.items()
+        if k != best
+    )
+    stats = dict(chosen.stats, layouts=tried)
+    stats["rate_control"] = f"best layout {best} ({chosen.stats['rate_control']}; {others})"
+    stats["seconds"] = dict(stats["seconds"], total=time.perf_counter() - t0)
+    return EncodeResult(chosen.data, chosen.vertices, chosen.faces, stats)
 
 
 class InputDefaults(NamedTuple):

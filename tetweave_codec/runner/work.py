@@ -48,7 +48,7 @@ class EncodeOptions:
     sh_degree: "auto", "none" or "0".."3". size: target bytes; max_error: target Chamfer distance (rate control).
     format_version: 1 or 2. position_bits / s_step / c_step: v2 quantization overrides (None = the defaults for
     `points`; not with the grid layout, which has its own). smoothing, subdivision: the decoder's Taubin steps and
-    Loop levels (None = the encoder's default). layout: "fit" or "grid" (encoder.LAYOUTS). threads: torch CPU
+    Loop levels (None = the encoder's default). layout: "fit", "grid" or "best" (encoder.LAYOUTS). threads: torch CPU
     threads (0 = torch's default). measure: compute the Chamfer distance.
     """
 
@@ -80,8 +80,10 @@ class EncodeOptions:
         from tetweave_codec.fit.config import default_quantization
 
         overrides = (self.position_bits, self.s_step, self.c_step)
-        if self.layout == "grid" and any(x is not None for x in overrides):
-            raise InputError("the grid layout chooses its own quantization: drop --position-bits, --s-step, --c-step")
+        if self.layout != "fit" and any(x is not None for x in overrides):
+            raise InputError(
+                f"the {self.layout} layout chooses its own quantization: drop --position-bits, --s-step, --c-step"
+            )
         quant = default_quantization(self.points)
         if self.position_bits is not None:
             quant = replace(quant, position_bits=self.position_bits)
