@@ -74,8 +74,8 @@ class TetweaveMethod(Method):
     points: grid points during the fit; sh_degree 0..3, or None for the encoder's choice (`input_defaults`: 1,
     none on inputs with sharp creases); quality/iters/device/seed as in `tetweave encode`.
     size: a target file size in bytes (rate control, `tetweave encode --size`) instead of a point count.
-    layout: where the points come from, "fit" or "grid" (`tetweave encode --layout`; the grid's curve and settings
-    say so, the fit's keep their names).
+    layout: where the points come from, "fit", "grid" or "best" (`tetweave encode --layout`; best needs `size`;
+    the curve and settings name every layout but the fit, whose names stay as they were).
     progress: optional fit progress callback, passed to the encoder unchanged.
     """
 

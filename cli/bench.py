@@ -198,7 +198,8 @@ def _command_line(p: dict) -> str:
     "layouts",
     default="fit",
     callback=_layouts,
-    help="tetweave layouts, comma-separated: fit and/or grid (see tetweave encode --layout); each is its own curve.",
+    help="tetweave layouts, comma-separated: fit, grid, best (see tetweave encode --layout; best only with --sizes); "
+    "each is its own curve.",
 )
 @quality_option
 @iters_option
