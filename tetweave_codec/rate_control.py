@@ -182,13 +182,7 @@ def encode_to_size(job, size: int, *, measure: bool = True):
         bits, scale = chosen.position_bits, chosen.scale
         result = complete(finals[bits], ctx, chosen.quantization)
     data = job.pack(result, ctx)
-    # Nudge the steps (no refit) into [SIZE_FLOOR * size, size].
-    result, data = _fit_band(job, ctx, result, data, size)
-    if not SIZE_FLOOR * size <= len(data) <= size:
-        raise InputError(
-            f"could not meet a size of {size:,} bytes: the closest file has {len(data):,} bytes "
-            f"({result.s.shape[0]:,} points); try another size or --points"
-        )
+    result, data = _into_band(job, ctx, result, data, size)
     extra = {"target_bytes": size, "rate_control": f"{points} points, b {bits}, steps x{scale:g}"}
     return job.result(result, ctx, points, measure=measure, data=data, extra=extra)
 
@@ -235,17 +229,23 @@ def _grid_to_size(job, size: int, measure: bool):
     with deterministic_torch():
         result = complete(fin, ctx, quant)
     data = job.pack(result, ctx)
+    result, data = _into_band(job, ctx, result, data, size)
+    extra = {
+        "target_bytes": size,
+        "rate_control": f"grid layout, {points} points, b {quant.position_bits}, frame x{ctx.frame_scale:.4g}",
+    }
+    return job.result(result, ctx, points, measure=measure, data=data, extra=extra)
+
+
+def _into_band(job, ctx, result: FinishResult, data: bytes, size: int) -> tuple[FinishResult, bytes]:
+    """Nudge the steps (no refit) into [SIZE_FLOOR * size, size] (`_fit_band`); InputError when that fails."""
     result, data = _fit_band(job, ctx, result, data, size)
     if not SIZE_FLOOR * size <= len(data) <= size:
         raise InputError(
             f"could not meet a size of {size:,} bytes: the closest file has {len(data):,} bytes "
             f"({result.s.shape[0]:,} points); try another size or --points"
         )
-    extra = {
-        "target_bytes": size,
-        "rate_control": f"grid layout, {points} points, b {quant.position_bits}, frame x{ctx.frame_scale:.4g}",
-    }
-    return job.result(result, ctx, points, measure=measure, data=data, extra=extra)
+    return result, data
 
 
 def _fit_band(job, ctx, result: FinishResult, data: bytes, size: int) -> tuple[FinishResult, bytes]:

@@ -24,10 +24,9 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
-import igl
 import numpy as np
 
-from tetweave_codec.fit.initialize import INSIDE_WINDING
+from tetweave_codec.fit.initialize import signed_distance
 from tetweave_codec.formats import quantize as Q
 from tetweave_codec.geometry.closest import SurfaceTree
 from tetweave_codec.geometry.triangles import face_areas, sample_surface
@@ -121,9 +120,11 @@ class GridBand:
         self.tree = SurfaceTree(self.vertices, self.faces)
         self.area = float(face_areas(self.vertices, self.faces).sum())
         self.seed = seed
+        self._last: tuple | None = None  # ((frame, band), (cells, s)) of the last `cells` query
 
     def cells(self, frame: GridFrame, band: float = GRID_BAND) -> tuple[np.ndarray, np.ndarray]:
-        """The band's points as stored cells in canonical order, and the grid-frame signed distance at them.
+        """The band's points as stored cells in canonical order, and the grid-frame signed distance at them (the
+        last query's result is kept: rate control asks for the same frame again before the late stage).
 
         Returns cells (N,3) int64 of the 2^stored_bits grid (lattice cells X << GRID_SPREAD) and s (N,) float64
         (negative inside; grid-frame units, i.e. normalized distances x frame_scale). A lattice cell is in the band
@@ -131,6 +132,8 @@ class GridBand:
         the lattice cells of dense surface samples and their neighbours (a cell the surface barely clips and no
         sample hits may be missed: the set is that of the samples, deterministic for the seed).
         """
+        if self._last is not None and self._last[0] == (frame, band):
+            return self._last[1]
         bits, k = frame
         top = (1 << bits) - 1
         cell = lattice_cell(bits)  # grid frame
@@ -146,13 +149,13 @@ class GridBand:
         cand = cand[((cand >= 0) & (cand <= top)).all(axis=1)] << GRID_SPREAD
         centres = Q.dequantize_positions(cand, frame.stored_bits) / k
         sq, _, _ = self.tree.query(centres)
-        dist = np.sqrt(np.maximum(sq, 0.0)) * k
-        near = dist < band * cell
-        cand, centres, dist = cand[near], centres[near], dist[near]
-        winding = igl.fast_winding_number(self.vertices, self.faces, centres) if len(cand) else np.zeros(0)
-        s = np.where(np.abs(winding) > INSIDE_WINDING, -dist, dist)
+        dist = np.sqrt(np.maximum(sq, 0.0))  # normalized frame
+        near = dist * k < band * cell
+        cand = cand[near]
+        s = signed_distance(centres[near], self.vertices, self.faces, distance=dist[near]) * k
         order = Q.canonical_order(cand, frame.stored_bits)
-        return cand[order], s[order]
+        self._last = ((frame, band), (cand[order], s[order]))
+        return self._last[1]
 
     def count(self, frame: GridFrame, band: float = GRID_BAND) -> int:
         return len(self.cells(frame, band)[0])

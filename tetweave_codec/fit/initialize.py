@@ -61,7 +61,11 @@ SIDE_HALVINGS = 4
 
 
 def signed_distance(
-    queries: np.ndarray, vertices: np.ndarray, faces: np.ndarray, tree: SurfaceTree | None = None
+    queries: np.ndarray,
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    tree: SurfaceTree | None = None,
+    distance: np.ndarray | None = None,
 ) -> np.ndarray:
     """Signed distance from points to a triangle mesh, negative inside.
 
@@ -78,6 +82,7 @@ def signed_distance(
         vertices: (V,3) float mesh vertices.
         faces: (F,3) int triangles.
         tree: a SurfaceTree of (vertices, faces), or None.
+        distance: (M,) the unsigned distances of the queries when the caller has them (no tree query then).
     Returns:
         (M,) float64 signed distances in the units of ``vertices``.
     """
@@ -88,9 +93,12 @@ def signed_distance(
         return np.zeros(0)
     if f.shape[0] == 0:
         raise InputError("cannot compute a signed distance to a mesh without faces")
-    sq_dist, _, _ = (tree or SurfaceTree(v, f)).query(q)
+    if distance is None:
+        sq_dist, _, _ = (tree or SurfaceTree(v, f)).query(q)
+        dist = np.sqrt(np.maximum(sq_dist, 0.0))
+    else:
+        dist = np.asarray(distance, dtype=np.float64).reshape(-1)
     winding = igl.fast_winding_number(v, f, q)
-    dist = np.sqrt(np.maximum(sq_dist, 0.0))
     return np.where(np.abs(winding) > INSIDE_WINDING, -dist, dist)
 
 
