@@ -31,6 +31,7 @@ PARAM_COLUMNS = [
     "target_bytes",
     "sh_degree",
     "layout",
+    "holes",
     "points_stored",
 ]
 SIZE_COLUMNS = ["bytes", "bits_per_vertex", "encode_s", "decode_s", "metrics_s"]
@@ -342,6 +343,7 @@ def precompute(paths: Sequence[Path], methods: Sequence[Method], executor, threa
                 points=m.points,
                 sh_degree="auto" if m.sh_degree is None else str(m.sh_degree),
                 layout=m.layout,
+                holes=m.holes,
                 quality=m.quality,
                 iters=m.iters,
                 size=m.size,

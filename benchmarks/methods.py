@@ -76,6 +76,7 @@ class TetweaveMethod(Method):
     size: a target file size in bytes (rate control, `tetweave encode --size`) instead of a point count.
     layout: where the points come from, "fit", "grid" or "best" (`tetweave encode --layout`; best needs `size`;
     the curve and settings name every layout but the fit, whose names stay as they were).
+    holes: "close" or "keep" (`tetweave encode --holes`; "keep" is named in the curve and settings as keep-holes).
     progress: optional fit progress callback, passed to the encoder unchanged.
     """
 
@@ -92,9 +93,11 @@ class TetweaveMethod(Method):
         progress: Callable | None = None,
         size: int | None = None,
         layout: str = "fit",
+        holes: str = "close",
     ) -> None:
         self.size = None if size is None else int(size)
         self.layout = layout
+        self.holes = holes
         self.points = int(points)
         self.sh_degree = None if sh_degree is None else int(sh_degree)
         self.quality = quality
@@ -106,7 +109,8 @@ class TetweaveMethod(Method):
     @property
     def _sh(self) -> str:
         sh = "sh auto" if self.sh_degree is None else f"sh{self.sh_degree}"
-        return sh if self.layout == "fit" else f"{sh} {self.layout}"
+        sh = sh if self.layout == "fit" else f"{sh} {self.layout}"
+        return sh if self.holes == "close" else f"{sh} keep-holes"
 
     @property
     def setting(self) -> str:
@@ -120,7 +124,8 @@ class TetweaveMethod(Method):
 
     def params(self) -> dict:
         degree = "auto" if self.sh_degree is None else self.sh_degree
-        return {"points": self.points, "sh_degree": degree, "target_bytes": self.size or "", "layout": self.layout}
+        return {"points": self.points, "sh_degree": degree, "target_bytes": self.size or "", "layout": self.layout,
+                "holes": self.holes}
 
     def encode(self, vertices: np.ndarray, faces: np.ndarray) -> bytes:
         from tetweave_codec.encoder import encode
@@ -138,6 +143,7 @@ class TetweaveMethod(Method):
             measure=False,  # the benchmark measures the decoded mesh itself
             size=self.size,
             layout=self.layout,
+            holes=self.holes,
         )
         self.points_used = result.stats["points_target"]
         return result.data

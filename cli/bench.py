@@ -77,6 +77,17 @@ def _degrees(ctx, param, value: str) -> list[int | None]:
     return out
 
 
+def _holes(ctx, param, value: str) -> list[str]:
+    """--holes: comma-separated choices of the encoder (encoder.HOLES)."""
+    from tetweave_codec.encoder import HOLES
+
+    out = list(dict.fromkeys(_split(value)))
+    bad = [x for x in out if x not in HOLES]
+    if bad or not out:
+        raise click.BadParameter(f"holes are {', '.join(HOLES)}, comma-separated; got {value!r}")
+    return out
+
+
 def _layouts(ctx, param, value: str) -> list[str]:
     """--layout: comma-separated layouts of the encoder (encoder.LAYOUTS)."""
     from tetweave_codec.encoder import LAYOUTS
@@ -140,6 +151,7 @@ def _command_line(p: dict) -> str:
             "--sh-degree",
             ",".join("auto" if d is None else str(d) for d in p["sh_degrees"]),
             *(["--layout", ",".join(p["layouts"])] if p["layouts"] != ["fit"] else []),
+            *(["--holes", ",".join(p["holes"])] if p["holes"] != ["close"] else []),
             "--quality",
             p["quality"],
         ]
@@ -201,6 +213,14 @@ def _command_line(p: dict) -> str:
     help="tetweave layouts, comma-separated: fit, grid, best (see tetweave encode --layout; best only with --sizes); "
     "each is its own curve.",
 )
+@click.option(
+    "--holes",
+    "holes",
+    default="close",
+    callback=_holes,
+    help="tetweave's treatment of open inputs' holes, comma-separated: close, keep (see tetweave encode --holes); "
+    "each is its own curve.",
+)
 @quality_option
 @iters_option
 @click.option(
@@ -255,6 +275,7 @@ def bench(
     sizes: list[int],
     sh_degrees: list[int | None],
     layouts: list[str],
+    holes: list[str],
     quality: str,
     iters: int | None,
     draco_bits: list[int],
@@ -332,8 +353,10 @@ def bench(
                 progress=_fit_progress(say, f"tetweave {label} {'sh auto' if d is None else f'sh{d}'} {layout}"),
                 size=s,
                 layout=layout,
+                holes=h,
             )
             for layout in layouts
+            for h in holes
             for d in sh_degrees
             for n, s, label in runs
         ]

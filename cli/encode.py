@@ -107,6 +107,16 @@ def _progress_lines(every_s: float = PROGRESS_LINE_SECONDS):
     "(--max-error), at the time of both. With grid, --points sets the cell size; grid and best choose their own "
     "quantization.",
 )
+@click.option(
+    "--holes",
+    type=click.Choice(["close", "keep"]),
+    default="close",
+    show_default=True,
+    help="What becomes of an open input's holes: close = the decoded mesh spans them (always watertight); keep = "
+    "the file lists the faces that span them (a few bytes) and the decoder removes them, so the mesh keeps the "
+    "input's boundary (2-manifold with boundary, no self-intersections) and its error is not that of the caps. "
+    "Closed inputs decode closed either way.",
+)
 @quality_option
 @iters_option
 @click.option(
@@ -175,6 +185,7 @@ def encode(
     points: int,
     sh_degree: str,
     layout: str,
+    holes: str,
     quality: str,
     iters: int | None,
     size: int | None,
@@ -207,6 +218,7 @@ def encode(
         points=points,
         sh_degree=sh_degree,
         layout=layout,
+        holes=holes,
         quality=quality,
         iters=iters,
         size=size,

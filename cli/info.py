@@ -28,6 +28,7 @@ def _v2_lines(file: Path, f, total: int, degree: str) -> list[tuple[str, str]]:
     predicted += "; octree context-coded" if f.flags & FLAG_OCTREE_CONTEXTS else ""
     predicted += f"; {f.smoothing} Taubin smoothing step{'s' if f.smoothing > 1 else ''}" if f.smoothing else ""
     predicted += f"; {f.subdivision} Loop subdivision level{'s' if f.subdivision > 1 else ''}" if f.subdivision else ""
+    predicted += f"; {len(f.holes):,} faces removed to keep the input's holes open" if f.holes is not None else ""
     lines = [
         ("file", str(file)),
         ("format", ".tw version 2 (quantized; octree + range-coded streams)"),
@@ -41,7 +42,9 @@ def _v2_lines(file: Path, f, total: int, degree: str) -> list[tuple[str, str]]:
         ),
         ("bytes", f"{total:,} total ({bpp(total)})"),
     ]
-    for part in ("header", "positions", "s", "c", "checksum"):
+    for part in ("header", "positions", "s", "c", "holes", "checksum"):
+        if part not in f.sizes:  # the holes section is optional
+            continue
         size = f.sizes[part]
         lines.append((f"  {part}", f"{size:,} ({bpp(size)})"))
     return lines

@@ -28,8 +28,13 @@ FLAG_SMOOTHING = 0b11 << SMOOTHING_SHIFT
 SUBDIVISION_SHIFT = 5
 FLAG_SUBDIVISION = 0b11 << SUBDIVISION_SHIFT
 MAX_SUBDIVISION = 2
+# version 2, bit 7: the file has a holes section (formats/holes.py): faces of the closed surface the decoder removes,
+# so that an open input's holes stay open; the header then has a fourth section size
+FLAG_HOLES = 1 << 7
 KNOWN_FLAGS = FLAG_QHULL  # version 1
-KNOWN_FLAGS_V2 = FLAG_QHULL | FLAG_S_PREDICTED | FLAG_OCTREE_CONTEXTS | FLAG_SMOOTHING | FLAG_SUBDIVISION
+KNOWN_FLAGS_V2 = (
+    FLAG_QHULL | FLAG_S_PREDICTED | FLAG_OCTREE_CONTEXTS | FLAG_SMOOTHING | FLAG_SUBDIVISION | FLAG_HOLES
+)
 # Largest normalized coordinate of version 1 (any finite float16); version 2's is the grid's, quantize.GRID_BOUND.
 COORDINATE_BOUND_V1 = float(np.finfo(np.float16).max)
 

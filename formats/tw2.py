@@ -9,7 +9,7 @@ offset  size       type     field
 8       2          uint16   version = 2
 10      1          uint8    flags; bit 0: Delaunay backend (0 = TetGen, 1 = Qhull); bit 1: s predicted;
                             bit 2: octree context-coded; bits 3-4: smoothing steps 0-3;
-                            bits 5-6: subdivision levels 0-2; bit 7: 0
+                            bits 5-6: subdivision levels 0-2; bit 7: holes section
 11      1          int8     SH degree d in -1..3
 12      1          uint8    position bits b in 6..16
 13      4          uint32   N, number of points (<= MAX_POINTS)
@@ -17,8 +17,9 @@ offset  size       type     field
 25      24         float64  offset x, y, z
 49      4          float32  s step
 53      4 (d + 1)  float32  c step of SH band l = 0..d
-H - 12  12         uint32   byte sizes of the sections: positions, s, c     (H = 65 + 4 (d + 1))
-H       ...        bytes    positions section, s section, c section
+H - 12  12 (16)    uint32   byte sizes of the sections: positions, s, c (, holes when flags bit 7)
+                            (H = 65 + 4 (d + 1), plus 4 with flags bit 7)
+H       ...        bytes    positions section, s section, c section (, holes section)
 end-4   4          uint32   CRC-32 (zlib) of every byte before it
 ======  =========  =======  ==========================================================================
 
@@ -36,10 +37,11 @@ import numpy as np
 from tetweave_codec.errors import ContainerError
 from tetweave_codec.geometry.sh import SH_DEGREE_NONE, check_degree, num_coeffs
 
-from . import attributes, common, octree
+from . import attributes, common, holes, octree
 from . import quantize as Q
 from .common import (
     CHECKSUM_SIZE,
+    FLAG_HOLES,
     FLAG_S_PREDICTED,
     KNOWN_FLAGS_V2,
     MAGIC,
@@ -61,13 +63,14 @@ FIXED_FORMAT = "<8sHBbBI4df"
 FIXED_SIZE = struct.calcsize(FIXED_FORMAT)  # 53
 MAX_POINTS = 2**22  # format limit: entropy-coded points have no minimum size, so N bounds every allocation
 SECTIONS = ("positions", "s", "c")
+HOLES_SECTION = "holes"  # the fourth section, present with flags bit 7
 
 assert FIXED_SIZE == 53
 
 
-def header_size(sh_degree: int) -> int:
-    """Header bytes for an SH degree: 53 + 4 (d + 1) + 12."""
-    return FIXED_SIZE + 4 * (sh_degree + 1) + 4 * len(SECTIONS)
+def header_size(sh_degree: int, with_holes: bool = False) -> int:
+    """Header bytes for an SH degree: 53 + 4 (d + 1) + 12, plus 4 (the holes section's size) with flags bit 7."""
+    return FIXED_SIZE + 4 * (sh_degree + 1) + 4 * (len(SECTIONS) + int(with_holes))
 
 
 @dataclass(frozen=True, eq=False)
@@ -81,7 +84,9 @@ class TetWeaveFileV2:
     sh_degree: -1..3. scale, offset: ``original = normalized * scale + offset``. flags: bit 0 = Qhull, bit 1 = s
     coded as prediction residuals, bit 2 = octree levels context-coded (what the encoder writes), bits 3-4 =
     Taubin smoothing steps of the decoded surface (`smoothing`), bits 5-6 = Loop subdivision levels after it
-    (`subdivision`).
+    (`subdivision`), bit 7 = a holes section (`holes`).
+    holes: (K,) int64 strictly increasing face ranks the decoder removes (formats/holes.py), K >= 1, exactly when
+    flags bit 7 is set; None (or empty) otherwise.
     sizes: byte size of each part of the file it was read from ("header", "positions", "s", "c",
     "checksum"), or None for a file built in memory.
 
@@ -99,6 +104,7 @@ class TetWeaveFileV2:
     offset: np.ndarray
     flags: int = 0
     sizes: dict | None = field(default=None, compare=False)
+    holes: np.ndarray | None = None
 
     version = VERSION
 
@@ -211,14 +217,22 @@ def pack_v2(f: TetWeaveFileV2) -> bytes:
     scale, offset, flags = checked_fields(f.scale, f.offset, f.flags, KNOWN_FLAGS_V2, Q.GRID_BOUND)
     if subdivision_levels(flags) > MAX_SUBDIVISION:
         raise ValueError(f"subdivision levels must be 0-{MAX_SUBDIVISION}, got {subdivision_levels(flags)}")
+    hole_ranks = np.zeros(0, np.int64) if f.holes is None else np.asarray(f.holes, dtype=np.int64).reshape(-1)
+    if bool(flags & FLAG_HOLES) != bool(len(hole_ranks)):
+        raise ValueError("flags bit 7 and a non-empty holes list go together")
     models, words = octree.encode(cells, bits, contexts=bool(flags & common.FLAG_OCTREE_CONTEXTS))
     if flags & FLAG_S_PREDICTED:
         s_section = attributes.encode_s_predicted(s_sym, cells)
     else:
         s_section = attributes.encode_s(s_sym)
     sections = (models + words, s_section, attributes.encode_c(c_sym, degree) if n else b"")
+    if len(hole_ranks):
+        if n == 0:
+            raise ValueError("a holes section needs points")
+        sections += (holes.encode_holes(hole_ranks),)
     header = struct.pack(FIXED_FORMAT, MAGIC, VERSION, flags, degree, bits, n, scale, *offset, s_step)
-    header += struct.pack(f"<{degree + 1}f", *band_steps) + struct.pack("<3I", *(len(x) for x in sections))
+    header += struct.pack(f"<{degree + 1}f", *band_steps)
+    header += struct.pack(f"<{len(sections)}I", *(len(x) for x in sections))
     return seal(header + b"".join(sections))
 
 
@@ -231,10 +245,12 @@ def unpack_v2(buf: bytes) -> TetWeaveFileV2:
     require_size(buf, header_size(SH_DEGREE_NONE) + CHECKSUM_SIZE, "a version-2 header")
     (_, _, flags, degree, bits, n, scale, ox, oy, oz, s_step) = struct.unpack_from(FIXED_FORMAT, buf, 0)
     degree = read_sh_degree(degree)
-    hsize = header_size(degree)
+    with_holes = bool(flags & FLAG_HOLES)
+    hsize = header_size(degree, with_holes)
+    count = len(SECTIONS) + int(with_holes)
     require_size(buf, hsize + CHECKSUM_SIZE, "the header alone")
     band_steps = struct.unpack_from(f"<{degree + 1}f", buf, FIXED_SIZE)
-    section_sizes = struct.unpack_from("<3I", buf, hsize - 12)
+    section_sizes = struct.unpack_from(f"<{count}I", buf, hsize - 4 * count)
     check_envelope(buf, hsize + sum(section_sizes) + CHECKSUM_SIZE)
     # Behind a valid checksum: the remaining checks catch files written wrongly (or forged) rather than damaged.
     flags = read_flags(flags, KNOWN_FLAGS_V2)
@@ -258,7 +274,7 @@ def unpack_v2(buf: bytes) -> TetWeaveFileV2:
     if n and q == 0 and section_sizes[2]:
         raise ContainerError("invalid .tw header: a c section without SH coefficients")
     starts = np.cumsum((hsize, *section_sizes))
-    sec = [buf[int(starts[i]) : int(starts[i + 1])] for i in range(3)]
+    sec = [buf[int(starts[i]) : int(starts[i + 1])] for i in range(count)]
     contexts = bool(flags & common.FLAG_OCTREE_CONTEXTS)
     model_bytes = octree.model_size(sec[0], int(bits), int(n), contexts)
     cells = octree.decode(sec[0][:model_bytes], sec[0][model_bytes:], int(bits), int(n), contexts)
@@ -267,8 +283,10 @@ def unpack_v2(buf: bytes) -> TetWeaveFileV2:
     else:
         s_sym = attributes.decode_s(sec[1], int(n))
     c_sym = attributes.decode_c(sec[2], int(n), int(degree))
-    sizes = {"header": hsize, **dict(zip(SECTIONS, section_sizes, strict=True)), "checksum": CHECKSUM_SIZE}
+    hole_ranks = holes.decode_holes(sec[3], int(n)) if with_holes else None
+    names = SECTIONS + ((HOLES_SECTION,) if with_holes else ())
+    sizes = {"header": hsize, **dict(zip(names, section_sizes, strict=True)), "checksum": CHECKSUM_SIZE}
     return TetWeaveFileV2(
         cells, s_sym, c_sym, int(bits), float(s_step), tuple(float(x) for x in band_steps), degree,
-        scale, offset, flags, sizes,
+        scale, offset, flags, sizes, hole_ranks,
     )  # fmt: skip

@@ -508,7 +508,6 @@ def test_n_above_the_format_limit_is_rejected_before_decoding():
 @pytest.mark.parametrize(
     "offset, fmt, value, message",
     [
-        (10, "<B", 128, "unknown flags"),
         (10, "<B", 96, "subdivision levels"),
         (11, "<b", 4, "SH degree"),
         (12, "<B", 5, "position bits"),

@@ -9,6 +9,8 @@ hull, see `marching_tets`), so every decoded mesh is watertight and 2-manifold, 
 A version-2 file may ask for Taubin smoothing of that surface (flags bits 3-4, geometry/smoothing.py) and Loop
 subdivision after it (bits 5-6, geometry/subdivision.py): the vertices of any face that these made cross another
 are put back (geometry/surface_filter.py), so the mesh stays closed, 2-manifold and free of self-intersections.
+A version-2 file of an open input may list faces that only cap the input's holes (flags bit 7, formats/holes.py):
+they are removed last (geometry/holes.py), leaving a 2-manifold with boundary, still free of self-intersections.
 """
 
 from __future__ import annotations
@@ -16,10 +18,12 @@ from __future__ import annotations
 import time
 import warnings
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 
 from tetweave_codec.geometry.delaunay import available_backends, tetrahedralize
+from tetweave_codec.geometry.holes import open_holes
 from tetweave_codec.geometry.marching_tets import marching_tets_numpy
 from tetweave_codec.geometry.sh import check_degree, num_coeffs
 from tetweave_codec.geometry.surface_filter import filter_surface
@@ -42,6 +46,10 @@ class DecodeResult:
     num_tets: size of the tetrahedralization.
     restored: vertices the self-intersection check put back to their unsmoothed place (all of the unsubdivided
         surface's when the filter was dropped).
+    extracted_faces: (F0, 3) int64 faces of the surface the marching tets extracted (before smoothing,
+        subdivision and holes; what a holes section's ranks name), over the first vertices of the closed surface.
+    closed_vertices, closed_faces: the surface before the holes were opened (the same arrays as vertices and faces
+        for a file without a holes section), in the input mesh's frame.
     """
 
     vertices: np.ndarray
@@ -51,6 +59,9 @@ class DecodeResult:
     seconds: dict[str, float] = field(default_factory=dict)
     num_tets: int = 0
     restored: int = 0
+    extracted_faces: np.ndarray | None = None
+    closed_vertices: np.ndarray | None = None
+    closed_faces: np.ndarray | None = None
 
 
 def mesh_from_points(
@@ -76,11 +87,20 @@ def mesh_from_points(
         vertices (V, 3) float64, faces (F, 3) int64 (outward; both empty when s has one sign only).
     """
     result = _extract(points, s, c, sh_degree, backend, {}, time.perf_counter, smoothing, subdivision)
-    return result[0], result[1]
+    return result.vertices, result.faces
 
 
-def _extract(points, s, c, sh_degree, backend, seconds, clock, smoothing=0, subdivision=0):
-    """(vertices, faces, tetrahedralization, restored vertex count), timing each stage into `seconds`."""
+class _Extracted(NamedTuple):
+    vertices: np.ndarray
+    faces: np.ndarray
+    tz: object
+    restored: int
+    extracted_faces: np.ndarray
+    children: int  # faces per extracted face: 4^L, or 1 when the filter was dropped
+
+
+def _extract(points, s, c, sh_degree, backend, seconds, clock, smoothing=0, subdivision=0) -> _Extracted:
+    """The closed surface and how it was made, timing each stage into `seconds`."""
     check_degree(sh_degree)
     pts = np.asarray(points, dtype=np.float64)
     s = np.asarray(s, dtype=np.float64).reshape(-1)
@@ -102,7 +122,8 @@ def _extract(points, s, c, sh_degree, backend, seconds, clock, smoothing=0, subd
     seconds["delaunay"] = t1 - t0
     seconds["marching_tets"] = t2 - t1
     seconds["smoothing"] = clock() - t2
-    return out.vertices, out.faces, tz, out.restored
+    children = 1 if out.gave_up else 4**subdivision
+    return _Extracted(out.vertices, out.faces, tz, out.restored, mt.faces, children)
 
 
 def decode(data: bytes, backend: str | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -138,8 +159,15 @@ def decode_detailed(data: bytes, backend: str | None = None, clock=time.perf_cou
                 stacklevel=2,
             )
             backend = available_backends()[0]
-    vertices, faces, tz, restored = _extract(
-        tw.points, tw.s, tw.c, tw.sh_degree, backend, seconds, clock, tw.smoothing, tw.subdivision
-    )
-    vertices = vertices * float(tw.scale) + tw.offset
-    return DecodeResult(vertices, faces, tw, tz.backend, seconds, len(tz.tets), restored)
+    ex = _extract(tw.points, tw.s, tw.c, tw.sh_degree, backend, seconds, clock, tw.smoothing, tw.subdivision)
+    closed_v = ex.vertices * float(tw.scale) + tw.offset
+    vertices, faces = closed_v, ex.faces
+    holes = getattr(tw, "holes", None)
+    if holes is not None and len(holes):
+        t0 = clock()
+        vertices, faces = open_holes(closed_v, ex.faces, ex.extracted_faces, holes, ex.children)
+        seconds["holes"] = clock() - t0
+    return DecodeResult(
+        vertices, faces, tw, ex.tz.backend, seconds, len(ex.tz.tets), ex.restored, ex.extracted_faces, closed_v,
+        ex.faces,
+    )  # fmt: skip

@@ -49,6 +49,10 @@ MAX_POINTS = 1 << 22
 # around the input (fit.grid), "best" encodes both (rate control only) and keeps the better file: the lower error
 # for --size, the smaller file for --max-error. Same container, same decoder.
 LAYOUTS = ("fit", "grid", "best")
+# What becomes of an open input's holes: "close" (the decoded surface spans them: always watertight) or "keep"
+# (the file lists the faces that span them, formats/holes.py, and the decoder removes them: a 2-manifold with
+# the input's boundary). Closed inputs decode closed either way.
+HOLES = ("close", "keep")
 
 
 @dataclass
@@ -110,6 +114,7 @@ def encode(
     smoothing: int | None = None,
     subdivision: int | None = None,
     layout: str = "fit",
+    holes: str = "close",
 ) -> EncodeResult:
     """Fit a TetWeave representation to a triangle mesh and return the `.tw` bytes and the decoded mesh.
 
@@ -133,6 +138,8 @@ def encode(
         "grid" (the cells of a lattice in a band around the input, fit.grid; container version 2 only; `points`
         sets the cell size: the band holds about that many points) or "best" (with `size` or `max_error` only:
         both, and the better file).
+    holes: "close" (every output watertight) or "keep" (an open input's holes stay open: the decoder removes the
+        faces that span them, listed in the file; container version 2 only). See HOLES.
     Deterministic: the same input, options, seed, device and thread count give the same bytes.
     """
     v, f = _validate(vertices, faces)
@@ -153,6 +160,10 @@ def encode(
         raise InputError(f"layout must be one of {', '.join(LAYOUTS)}, got {layout!r}")
     if layout != "fit" and (container_version != 2 or quantization is not None):
         raise InputError(f"the {layout} layout needs container version 2 and chooses its own quantization")
+    if holes not in HOLES:
+        raise InputError(f"holes must be one of {', '.join(HOLES)}, got {holes!r}")
+    if holes == "keep" and container_version != 2:
+        raise InputError("keeping holes open needs container version 2")
     if layout == "best" and size is None and max_error is None:
         raise InputError("the best layout compares the two layouts' files at a --size or --max-error")
     if smoothing is not None and not 0 <= smoothing <= MAX_SMOOTHING_STEPS:
@@ -186,6 +197,7 @@ def encode(
             smoothing=smoothing,
             subdivision=subdivision,
             layout=layout,
+            keep_holes=holes == "keep",
         )
 
     if layout == "best":
@@ -292,10 +304,12 @@ class Job:
         smoothing=0,
         subdivision=0,
         layout="fit",
+        keep_holes=False,
     ):
         """scale_iterations: run `fit.config.scaled_schedule` of `schedule` for each point count (off when the
         caller fixed the iterations). smoothing, subdivision: the decoder's Taubin steps and Loop levels (stored
-        in the file). layout: "fit" or "grid" (LAYOUTS)."""
+        in the file). layout: "fit" or "grid" (LAYOUTS). keep_holes: every packed file of an open input lists
+        the faces that span its holes (HOLES "keep")."""
         from tetweave_codec.meshio import normalize
 
         self.t_start = time.perf_counter()
@@ -308,6 +322,11 @@ class Job:
         self.layout = layout
         self.seconds: dict[str, float] = {}
         self._band = None
+        self.rim = None
+        if keep_holes:
+            from tetweave_codec.fit.holes import input_rim
+
+            self.rim = input_rim(self.normalized, self.f)
 
     def config(self, points: int, quantization: Quantization | None) -> FitConfig:
         return FitConfig(
@@ -386,7 +405,29 @@ class Job:
         return ctx, fixed, quant
 
     def pack(self, fin: FinishResult, ctx: FitContext) -> bytes:
-        return self.pack_as(fin, ctx.backend, ctx.frame_scale, ctx.config.smoothing, ctx.config.subdivision)
+        """The file of `fin`, with the holes section when the job keeps an open input's holes."""
+        data = self.pack_as(fin, ctx.backend, ctx.frame_scale, ctx.config.smoothing, ctx.config.subdivision)
+        return data if self.rim is None else self.with_holes(data)
+
+    def with_holes(self, data: bytes) -> bytes:
+        """`data` (a version-2 file without holes) with a holes section listing the faces of its decoded surface
+        that span the input's holes (fit.holes); `data` itself when there are none."""
+        from dataclasses import replace
+
+        from tetweave_codec.decoder import decode_detailed
+        from tetweave_codec.fit.holes import hole_ranks
+        from tetweave_codec.formats.common import FLAG_HOLES
+        from tetweave_codec.formats.tw import pack_v2, unpack
+
+        t0 = time.perf_counter()
+        full = decode_detailed(data)
+        closed = (full.closed_vertices - self.offset) / self.scale
+        ranks = hole_ranks(self.rim, closed, full.extracted_faces)
+        self.seconds["holes"] = self.seconds.get("holes", 0.0) + time.perf_counter() - t0
+        if not len(ranks):
+            return data
+        tw = unpack(data)
+        return pack_v2(replace(tw, flags=tw.flags | FLAG_HOLES, holes=ranks, sizes=None))
 
     def pack_as(self, fin: FinishResult, backend: str, frame_scale: float, smoothing: int, subdivision: int) -> bytes:
         """The bytes of `fin` for a fit in the frame normalized x frame_scale (the transform divides it out)."""
@@ -461,6 +502,8 @@ class Job:
             "device": str(self.device),
             "vertices": int(len(out_v)),
             "faces": int(len(out_f)),
+            "hole_faces": 0 if full.container.version == 1 or full.container.holes is None
+            else int(len(full.container.holes)),
             "seconds": seconds,
             "chamfer": chamfer,
         }

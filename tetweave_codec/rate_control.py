@@ -346,7 +346,7 @@ def encode_to_error(job, max_error: float):
 
 def mesh_prior(job) -> tuple[float, float]:
     """(P, F) of the per-mesh prior err ~ P / N + F of this job's input (see PRIOR_BASE)."""
-    return prior_error_points(job), hole_cap_error(job.normalized, job.f)
+    return prior_error_points(job), 0.0 if job.rim is not None else hole_cap_error(job.normalized, job.f)
 
 
 def prior_error_points(job) -> float:

@@ -48,13 +48,15 @@ class EncodeOptions:
     sh_degree: "auto", "none" or "0".."3". size: target bytes; max_error: target Chamfer distance (rate control).
     format_version: 1 or 2. position_bits / s_step / c_step: v2 quantization overrides (None = the defaults for
     `points`; not with the grid layout, which has its own). smoothing, subdivision: the decoder's Taubin steps and
-    Loop levels (None = the encoder's default). layout: "fit", "grid" or "best" (encoder.LAYOUTS). threads: torch CPU
+    Loop levels (None = the encoder's default). layout: "fit", "grid" or "best" (encoder.LAYOUTS). holes: "close" or
+    "keep" (encoder.HOLES: an open input's holes spanned, or kept open). threads: torch CPU
     threads (0 = torch's default). measure: compute the Chamfer distance.
     """
 
     points: int = 16384
     sh_degree: str = "auto"
     layout: str = "fit"
+    holes: str = "close"
     quality: str = "default"
     iters: int | None = None
     size: int | None = None
@@ -101,6 +103,7 @@ class EncodeOptions:
             container_version=int(self.format_version),
             quantization=quant if self.layout == "fit" else None,
             layout=self.layout,
+            holes=self.holes,
             size=self.size,
             max_error=self.max_error,
             measure=self.measure,

@@ -1,0 +1,89 @@
+"""Which faces of a decoded closed surface only cap the holes of an open input (the encoder's side of a `.tw`
+holes section, formats/holes.py; the decoder's side is geometry/holes.py).
+
+A TetWeave surface is closed, so where the input has a hole (a loop of boundary edges) the decoded surface spans
+it. A face is a *cap* face when the point of the input nearest to its centroid lies on a boundary edge of the
+input and is not the centroid itself: the face is off the input, beyond its rim. Removing the caps leaves the
+input's holes open; faces around a vertex that would be left with two fans are kept, so the result stays a
+2-manifold with boundary.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from tetweave_codec.geometry.closest import SurfaceTree
+from tetweave_codec.geometry.holes import face_ranks, pinched_vertices
+
+# A centroid at most this far from the input (normalized frame) lies on it, whatever its nearest feature.
+ON_SURFACE = 1e-9
+# The nearest point is on a boundary edge when it is within this distance of it (the query's rounding).
+ON_EDGE = 1e-9
+
+
+@dataclass
+class InputRim:
+    """An open input prepared for cap queries: vertices (V,3) normalized frame, faces (F,3), boundary (F,3) bool
+    whether side i (v_i, v_i+1) of each face is a boundary edge (one face only), tree over the input."""
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    boundary: np.ndarray
+    tree: SurfaceTree
+
+
+def input_rim(vertices: np.ndarray, faces: np.ndarray) -> InputRim | None:
+    """The input's rim (see InputRim), or None when every edge has two or more faces (nothing to keep open)."""
+    f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    half = np.stack([f, np.roll(f, -1, axis=1)], axis=2).reshape(-1, 2)
+    _, inverse, counts = np.unique(np.sort(half, axis=1), axis=0, return_inverse=True, return_counts=True)
+    boundary = (counts[inverse.reshape(-1)] == 1).reshape(-1, 3)
+    if not boundary.any():
+        return None
+    v = np.asarray(vertices, dtype=np.float64)
+    return InputRim(v, f, boundary, SurfaceTree(v, f))
+
+
+def _segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    ab = b - a
+    t = np.clip(((p - a) * ab).sum(1) / np.maximum((ab * ab).sum(1), 1e-300), 0.0, 1.0)
+    return np.linalg.norm(p - (a + t[:, None] * ab), axis=1)
+
+
+def cap_faces(rim: InputRim, vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(F,) bool: the faces (F,3) over vertices (V,3) (normalized frame) that cap the input's holes."""
+    f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    if not len(f):
+        return np.zeros(0, dtype=bool)
+    centroid = np.asarray(vertices, dtype=np.float64)[f].mean(1)
+    sq, face, closest = rim.tree.query(centroid)
+    cap = np.zeros(len(f), dtype=bool)
+    off = np.flatnonzero((np.sqrt(np.maximum(sq, 0.0)) > ON_SURFACE) & rim.boundary[face].any(1))
+    for side in range(3):
+        sel = off[rim.boundary[face[off], side]]
+        tri = rim.faces[face[sel]]
+        a, b = rim.vertices[tri[:, side]], rim.vertices[tri[:, (side + 1) % 3]]
+        cap[sel[_segment_distance(closest[sel], a, b) <= ON_EDGE]] = True
+    return cap
+
+
+def hole_ranks(rim: InputRim, vertices: np.ndarray, extracted_faces: np.ndarray) -> np.ndarray:
+    """Sorted canonical ranks (K,) of the extracted faces to remove: the caps, less those around vertices the
+    removal would pinch (repeated until none is). vertices: the closed surface (normalized frame) whose first
+    vertices are the extracted surface's; extracted_faces (F0,3). Empty when nothing is to be removed or when the
+    removal would leave no face."""
+    f0 = np.asarray(extracted_faces, dtype=np.int64).reshape(-1, 3)
+    cap = cap_faces(rim, vertices, f0)
+    for _ in range(len(f0)):
+        if not cap.any() or cap.all():
+            break
+        pinched = pinched_vertices(f0[~cap], int(f0.max()) + 1)
+        if not len(pinched):
+            break
+        touched = np.isin(f0, pinched).any(1)
+        cap &= ~touched
+    if not cap.any() or cap.all():
+        return np.zeros(0, dtype=np.int64)
+    return np.sort(face_ranks(f0)[cap])
