@@ -124,8 +124,13 @@ class TetweaveMethod(Method):
 
     def params(self) -> dict:
         degree = "auto" if self.sh_degree is None else self.sh_degree
-        return {"points": self.points, "sh_degree": degree, "target_bytes": self.size or "", "layout": self.layout,
-                "holes": self.holes}
+        return {
+            "points": self.points,
+            "sh_degree": degree,
+            "target_bytes": self.size or "",
+            "layout": self.layout,
+            "holes": self.holes,
+        }
 
     def encode(self, vertices: np.ndarray, faces: np.ndarray) -> bytes:
         from tetweave_codec.encoder import encode

@@ -32,9 +32,7 @@ MAX_SUBDIVISION = 2
 # so that an open input's holes stay open; the header then has a fourth section size
 FLAG_HOLES = 1 << 7
 KNOWN_FLAGS = FLAG_QHULL  # version 1
-KNOWN_FLAGS_V2 = (
-    FLAG_QHULL | FLAG_S_PREDICTED | FLAG_OCTREE_CONTEXTS | FLAG_SMOOTHING | FLAG_SUBDIVISION | FLAG_HOLES
-)
+KNOWN_FLAGS_V2 = FLAG_QHULL | FLAG_S_PREDICTED | FLAG_OCTREE_CONTEXTS | FLAG_SMOOTHING | FLAG_SUBDIVISION | FLAG_HOLES
 # Largest normalized coordinate of version 1 (any finite float16); version 2's is the grid's, quantize.GRID_BOUND.
 COORDINATE_BOUND_V1 = float(np.finfo(np.float16).max)
 

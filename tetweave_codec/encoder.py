@@ -502,8 +502,7 @@ class Job:
             "device": str(self.device),
             "vertices": int(len(out_v)),
             "faces": int(len(out_f)),
-            "hole_faces": 0 if full.container.version == 1 or full.container.holes is None
-            else int(len(full.container.holes)),
+            "hole_faces": _hole_faces(full.container),
             "seconds": seconds,
             "chamfer": chamfer,
         }
@@ -511,6 +510,12 @@ class Job:
         if measure and chamfer is None and len(out_f):
             stats["chamfer"] = self.chamfer(out_v, out_f)
         return EncodeResult(data, out_v, out_f, stats)
+
+
+def _hole_faces(container) -> int:
+    """Faces a file's holes section removes (0 without one, and in version 1)."""
+    holes = getattr(container, "holes", None)
+    return 0 if holes is None else int(len(holes))
 
 
 def pack_result(result: FitResult, scale: float, offset: np.ndarray) -> bytes:
