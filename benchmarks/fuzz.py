@@ -22,9 +22,11 @@ section sizes and recomputes the CRC so that the mutation reaches the parsers be
 Every case decodes in a worker process (memory capped at ``--memory-gb``) with a time limit, through
 `decode_detailed` with the file's own backend flag; a decoded mesh must pass `marching_tets.check_manifold`
 (closed) and manifold3d, and a smoothed one must have no self-intersecting faces (unless the decoder kept the
-unsmoothed extraction). Outcomes: ``rejected``
-(ContainerError), ``closed`` (a non-empty closed 2-manifold), ``empty`` (no surface: one sign only, or points
-spanning no volume), and the failures ``non_manifold``,
+unsmoothed extraction); a file with a holes section (flags bit 7) must pass these on the surface before the holes
+were opened, and its result must be a 2-manifold with boundary (every edge of one or two faces, oriented, no
+pinched vertex). Outcomes: ``rejected``
+(ContainerError), ``closed`` (a non-empty closed 2-manifold), ``open`` (holes opened in one), ``empty`` (no
+surface: one sign only, or points spanning no volume), and the failures ``non_manifold``,
 ``error`` (any other exception, TopologyError included), ``timeout`` and ``crash`` (the worker died).
 Case i uses the generator ``numpy.random.default_rng([seed, i])``, so ``--only i`` replays one case.
 
@@ -48,6 +50,7 @@ import numpy as np
 from tetweave_codec.formats import quantize as Q
 from tetweave_codec.formats.common import (
     CHECKSUM_SIZE,
+    FLAG_HOLES,
     FLAG_OCTREE_CONTEXTS,
     FLAG_QHULL,
     FLAG_S_PREDICTED,
@@ -58,7 +61,7 @@ from tetweave_codec.formats.common import (
 from tetweave_codec.formats.tw2 import FIXED_SIZE, MAX_POINTS, header_size, pack_v2, quantize_file
 
 FAILURES = ("non_manifold", "error", "timeout", "crash")
-OUTCOMES = ("rejected", "closed", "empty", *FAILURES)
+OUTCOMES = ("rejected", "closed", "open", "empty", *FAILURES)
 NO_RESEAL_SHARE = 0.05  # cases whose sizes and CRC are left as the mutations made them
 MAX_MUTATIONS = 3
 DEFAULT_TIME_LIMIT = 60.0  # seconds per case; a seed file decodes in well under a second
@@ -102,8 +105,10 @@ def _shell_cells(rng: np.random.Generator, bits: int, count: int, shape: str) ->
     return cells[near], sdf[near]
 
 
-def seed_files(seed: int = 0, max_points: int = 3000) -> list[tuple[str, bytes]]:
-    """Valid version-2 files (name, bytes) covering every header variant the writer produces; see module doc."""
+def seed_files(seed: int = 0, max_points: int = 3000, holes: bool = True) -> list[tuple[str, bytes]]:
+    """Valid version-2 files (name, bytes) covering every header variant the writer produces; see module doc.
+    holes: add copies of a few of them with a holes section (flags bit 7); without them the list is that of
+    before holes existed, so the campaign's recorded cases replay."""
     rng = np.random.default_rng([seed, 2**31])
     files = []
     variants = [(bits, degree) for bits in (6, 8, 10, 12) for degree in (-1, 0, 1, 2, 3)]
@@ -134,7 +139,30 @@ def seed_files(seed: int = 0, max_points: int = 3000) -> list[tuple[str, bytes]]
             flags=FLAG_S_PREDICTED | (FLAG_QHULL if n % 2 else 0),
         )  # fmt: skip
         files.append((f"tiny-n{n}", pack_v2(f)))
+    if holes:
+        files += [(f"{name}-holes", h) for name, data in files[:: len(variants) // 4] if (h := _with_holes(data))]
     return files
+
+
+def _with_holes(data: bytes) -> bytes | None:
+    """`data` with a holes section that opens the top tenth of its decoded surface (no pinch): a valid file with
+    flags bit 7, or None when the surface is empty."""
+    from dataclasses import replace
+
+    from tetweave_codec.decoder import decode_detailed
+    from tetweave_codec.formats.tw2 import unpack_v2
+    from tetweave_codec.geometry.holes import face_ranks, without_pinches
+
+    full = decode_detailed(data)
+    f0 = full.extracted_faces
+    if len(f0) < 8:
+        return None
+    z = full.closed_vertices[f0].mean(1)[:, 2]
+    remove = without_pinches(f0, z > np.quantile(z, 0.9))
+    if not remove.any() or remove.all():
+        return None
+    tw = unpack_v2(data)
+    return pack_v2(replace(tw, flags=tw.flags | FLAG_HOLES, holes=np.sort(face_ranks(f0)[remove]), sizes=None))
 
 
 # -----------------------------------------------------------------------------------------------------------
@@ -143,7 +171,8 @@ def seed_files(seed: int = 0, max_points: int = 3000) -> list[tuple[str, bytes]]
 
 @dataclass
 class Parts:
-    """A version-2 file cut along its layout: header (H bytes, size fields included) and the three sections."""
+    """A version-2 file cut along its layout: header (H bytes, size fields included) and its three sections, or
+    four with a holes section (flags bit 7 of the seed)."""
 
     header: bytearray
     sections: list[bytes]
@@ -155,17 +184,19 @@ class Parts:
 def split(data: bytes) -> Parts:
     """Cut a valid version-2 file into its parts."""
     degree = struct.unpack_from("<b", data, 11)[0]
-    h = header_size(degree)
-    sizes = struct.unpack_from("<3I", data, h - 12)
+    count = 3 + bool(data[10] & FLAG_HOLES)
+    h = header_size(degree, count == 4)
+    sizes = struct.unpack_from(f"<{count}I", data, h - 4 * count)
     starts = np.cumsum((h, *sizes)).tolist()
-    return Parts(bytearray(data[:h]), [data[starts[i] : starts[i + 1]] for i in range(3)])
+    return Parts(bytearray(data[:h]), [data[starts[i] : starts[i + 1]] for i in range(count)])
 
 
 def assemble(parts: Parts, reseal: bool = True) -> bytes:
     """The file's bytes: size fields rewritten (unless a mutation set them) and the CRC recomputed if `reseal`."""
     header = bytearray(parts.header)
-    if not parts.keep_sizes and len(header) >= 12:
-        struct.pack_into("<3I", header, len(header) - 12, *(len(s) for s in parts.sections))
+    count = len(parts.sections)
+    if not parts.keep_sizes and len(header) >= 4 * count:
+        struct.pack_into(f"<{count}I", header, len(header) - 4 * count, *(len(s) for s in parts.sections))
     body = bytes(header) + b"".join(parts.sections)
     data = seal(body) if reseal else body + b"\0" * CHECKSUM_SIZE
     if parts.tail is not None:
@@ -185,9 +216,9 @@ def _field_value(rng: np.random.Generator, fmt: str, old):
     return choices[int(rng.integers(len(choices)))]
 
 
-def _header_fields(header: bytearray) -> dict[str, tuple[int, str]]:
+def _header_fields(parts: Parts) -> dict[str, tuple[int, str]]:
     """The seed header's fields: name -> (offset, struct format), the c steps of its SH bands included."""
-    bands = (len(header) - FIXED_SIZE - 12) // 4
+    bands = (len(parts.header) - FIXED_SIZE - 4 * len(parts.sections)) // 4
     return {**FIELDS, **{f"c_step_{band}": (FIXED_SIZE + 4 * band, "<f") for band in range(bands)}}
 
 
@@ -195,7 +226,7 @@ def _header_fields(header: bytearray) -> dict[str, tuple[int, str]]:
 
 
 def _m_field(rng, parts, others):
-    fields = _header_fields(parts.header)
+    fields = _header_fields(parts)
     name = list(fields)[int(rng.integers(len(fields)))]
     offset, fmt = fields[name]
     (old,) = struct.unpack_from(fmt, parts.header, offset)
@@ -213,19 +244,21 @@ def _m_backend(rng, parts, others):
 
 
 def _m_sizes(rng, parts, others):
-    k = int(rng.integers(3))
-    (old,) = struct.unpack_from("<I", parts.header, len(parts.header) - 12 + 4 * k)
+    count = len(parts.sections)
+    k = int(rng.integers(count))
+    at = len(parts.header) - 4 * count
+    (old,) = struct.unpack_from("<I", parts.header, at + 4 * k)
     value = _field_value(rng, "<I", old)
-    struct.pack_into("<3I", parts.header, len(parts.header) - 12, *(len(s) for s in parts.sections))
-    struct.pack_into("<I", parts.header, len(parts.header) - 12 + 4 * k, value)
+    struct.pack_into(f"<{count}I", parts.header, at, *(len(s) for s in parts.sections))
+    struct.pack_into("<I", parts.header, at + 4 * k, value)
     parts.keep_sizes = True
-    return f"sizes:{'PSC'[k]}={value}"
+    return f"sizes:{'PSCR'[k]}={value}"
 
 
 def _m_boundary(rng, parts, others):
     joined = b"".join(parts.sections)
     sizes = [len(s) for s in parts.sections]
-    k = int(rng.integers(2))  # boundary between section k and k + 1
+    k = int(rng.integers(len(sizes) - 1))  # boundary between section k and k + 1
     move = int(rng.integers(1, 65)) * (1 if rng.random() < 0.5 else -1)
     if rng.random() < 0.2:
         move = -sizes[k] if rng.random() < 0.5 else sizes[k + 1]  # to an extreme: one section empty
@@ -233,19 +266,19 @@ def _m_boundary(rng, parts, others):
     sizes[k] += move
     sizes[k + 1] -= move
     starts = np.cumsum([0, *sizes]).tolist()
-    parts.sections = [joined[starts[i] : starts[i + 1]] for i in range(3)]
+    parts.sections = [joined[starts[i] : starts[i + 1]] for i in range(len(sizes))]
     return f"boundary:{k}{move:+d}"
 
 
 def _m_splice(rng, parts, others):
-    k = int(rng.integers(3))
+    k = int(rng.integers(len(parts.sections)))
     donor = split(others[int(rng.integers(len(others)))])
-    parts.sections[k] = donor.sections[k]
+    parts.sections[k] = donor.sections[k] if k < len(donor.sections) else b""  # a donor without holes: none
     return f"splice:{k}"
 
 
 def _m_truncate(rng, parts, others):
-    k = int(rng.integers(3))
+    k = int(rng.integers(len(parts.sections)))
     sec = parts.sections[k]
     cut = int(rng.integers(0, len(sec) + 1)) if rng.random() < 0.3 else min(len(sec), int(rng.integers(1, 9)))
     parts.sections[k] = sec[: len(sec) - cut] if rng.random() < 0.8 else sec[cut:]
@@ -253,7 +286,7 @@ def _m_truncate(rng, parts, others):
 
 
 def _m_extend(rng, parts, others):
-    k = int(rng.integers(3))
+    k = int(rng.integers(len(parts.sections)))
     extra = int(rng.integers(1, 257))
     kind = int(rng.integers(3))
     add = (bytes(extra), rng.bytes(extra), (parts.sections[k] * 2)[:extra])[kind]
@@ -270,12 +303,12 @@ def _m_flip(rng, parts, others):
         bit = int(rng.integers(len(joined) * 8))
         joined[bit // 8] ^= 1 << (bit % 8)
     sizes = np.cumsum([0, *(len(s) for s in parts.sections)]).tolist()
-    parts.sections = [bytes(joined[sizes[i] : sizes[i + 1]]) for i in range(3)]
+    parts.sections = [bytes(joined[sizes[i] : sizes[i + 1]]) for i in range(len(parts.sections))]
     return f"flip:{flips}"
 
 
 def _m_models(rng, parts, others):
-    k = int(rng.integers(3))
+    k = int(rng.integers(len(parts.sections)))
     sec = bytearray(parts.sections[k])
     if not sec:
         return "models:none"
@@ -287,7 +320,8 @@ def _m_models(rng, parts, others):
 
 
 def _m_random(rng, parts, others):
-    which = range(3) if rng.random() < 0.3 else [int(rng.integers(3))]
+    count = len(parts.sections)
+    which = range(count) if rng.random() < 0.3 else [int(rng.integers(count))]
     for k in which:
         length = len(parts.sections[k]) if rng.random() < 0.7 else int(rng.integers(0, 4096))
         parts.sections[k] = rng.bytes(length)
@@ -350,7 +384,41 @@ def classify(data: bytes) -> tuple[str, str]:
 
 
 def classify_result(result) -> tuple[str, str]:
-    """ "closed", "empty" or "non_manifold" (with a detail) for a `decoder.DecodeResult`."""
+    """ "closed", "open", "empty" or "non_manifold" (with a detail) for a `decoder.DecodeResult`."""
+    from dataclasses import replace
+
+    holes = getattr(result.container, "holes", None)
+    if holes is None or not len(result.faces):
+        return _classify_closed(result)
+    outcome, detail = _classify_closed(replace(result, vertices=result.closed_vertices, faces=result.closed_faces))
+    if outcome != "closed":
+        return outcome, f"before the holes: {detail}"
+    problem = _open_problem(result.vertices, result.faces)
+    if problem:
+        return "non_manifold", problem
+    return "open", f"{detail}, {len(holes)} faces opened"
+
+
+def _open_problem(v: np.ndarray, f: np.ndarray) -> str | None:
+    """Why (v, f) is not a 2-manifold with boundary (None when it is): edges of one or two faces seen in opposite
+    directions, every vertex used, one fan per vertex."""
+    from tetweave_codec.geometry.holes import pinched_vertices
+
+    half = np.stack([f, np.roll(f, -1, axis=1)], axis=2).reshape(-1, 2)
+    _, counts = np.unique(half, axis=0, return_counts=True)
+    if counts.max() > 1:
+        return "a directed edge used twice"
+    _, counts = np.unique(np.sort(half, axis=1), axis=0, return_counts=True)
+    if counts.max() > 2:
+        return "an edge of three or more faces"
+    if len(np.unique(f)) != len(v) or not np.isfinite(v).all():
+        return "unreferenced or non-finite vertices"
+    if len(pinched_vertices(f, len(v))):
+        return "a pinched vertex"
+    return None
+
+
+def _classify_closed(result) -> tuple[str, str]:
     import manifold3d
 
     from tetweave_codec.geometry.marching_tets import check_manifold

@@ -166,7 +166,7 @@ def test_flags_bits_3_and_4_hold_the_steps():
         assert smoothing_flags(k) & ~KNOWN_FLAGS_V2 == 0
     with pytest.raises(ValueError):
         smoothing_flags(4)
-    assert not (1 << 7) & KNOWN_FLAGS_V2
+    assert (1 << 7) & KNOWN_FLAGS_V2 and not smoothing_flags(3) & (1 << 7)  # bit 7 is the holes section's
 
 
 def test_mesh_from_points_smooths_and_stays_closed():

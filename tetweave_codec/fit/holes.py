@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from tetweave_codec.geometry.closest import SurfaceTree
-from tetweave_codec.geometry.holes import face_ranks, pinched_vertices
+from tetweave_codec.geometry.holes import face_ranks, without_pinches
 
 # A centroid at most this far from the input (normalized frame) lies on it, whatever its nearest feature.
 ON_SURFACE = 1e-9
@@ -75,15 +75,7 @@ def hole_ranks(rim: InputRim, vertices: np.ndarray, extracted_faces: np.ndarray)
     vertices are the extracted surface's; extracted_faces (F0,3). Empty when nothing is to be removed or when the
     removal would leave no face."""
     f0 = np.asarray(extracted_faces, dtype=np.int64).reshape(-1, 3)
-    cap = cap_faces(rim, vertices, f0)
-    for _ in range(len(f0)):
-        if not cap.any() or cap.all():
-            break
-        pinched = pinched_vertices(f0[~cap], int(f0.max()) + 1)
-        if not len(pinched):
-            break
-        touched = np.isin(f0, pinched).any(1)
-        cap &= ~touched
+    cap = without_pinches(f0, cap_faces(rim, vertices, f0))
     if not cap.any() or cap.all():
         return np.zeros(0, dtype=np.int64)
     return np.sort(face_ranks(f0)[cap])

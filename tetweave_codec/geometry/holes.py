@@ -49,10 +49,24 @@ def pinched_vertices(faces: np.ndarray, num_vertices: int) -> np.ndarray:
     rows = np.concatenate([ca[h1], cb[h1]])
     cols = np.concatenate([cb[h2], ca[h2]])
     graph = coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(3 * len(f), 3 * len(f)))
-    _, label = connected_components(graph, directed=False)
-    fans = np.unique(np.stack([a, label], axis=1), axis=0)[:, 0]
+    count, label = connected_components(graph, directed=False)
+    fans = np.unique(a * np.int64(count) + label) // count  # one entry per (vertex, fan)
     counts = np.bincount(fans, minlength=n)
     return np.flatnonzero(counts > 1)
+
+
+def without_pinches(faces: np.ndarray, remove: np.ndarray) -> np.ndarray:
+    """remove (F,) bool, less every face around a vertex that removing them would pinch (two or more fans left),
+    repeated until no vertex is pinched: a removal a decoder accepts. faces (F,3) of a closed 2-manifold."""
+    f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    remove = np.asarray(remove, dtype=bool).copy()
+    n = int(f.max()) + 1 if len(f) else 0
+    while remove.any() and not remove.all():
+        pinched = pinched_vertices(f[~remove], n)
+        if not len(pinched):
+            break
+        remove &= ~np.isin(f, pinched).any(1)  # strictly fewer removed faces each time: at most F rounds
+    return remove
 
 
 def open_holes(
@@ -80,10 +94,12 @@ def open_holes(
     removed = np.zeros(len(f0), dtype=bool)  # by rank
     removed[r] = True
     by_face = removed[face_ranks(f0)]
-    keep = np.repeat(~by_face, children)
-    kept = np.asarray(faces, dtype=np.int64)[keep]
-    if len(pinched_vertices(kept, len(vertices))):
+    # A pinch of the subdivided result is a pinch of the extracted surface (Loop's new vertices are edge midpoints,
+    # whose faces always form one fan; an old vertex's faces are its parents' children, joined the same way), so
+    # the check runs on the 4^L times smaller surface.
+    if len(pinched_vertices(f0[~by_face], int(f0.max()) + 1 if len(f0) else 0)):
         raise ContainerError("invalid .tw file: its holes leave a vertex where two parts of the surface meet")
+    kept = np.asarray(faces, dtype=np.int64)[np.repeat(~by_face, children)]
     used = np.zeros(len(vertices), dtype=bool)
     used[kept.reshape(-1)] = True
     new_index = np.cumsum(used) - 1
