@@ -288,3 +288,11 @@ def test_pinches_of_the_subdivided_surface_are_those_of_the_extracted_one():
         np.testing.assert_array_equal(coarse, fine)
         pinched_any += len(coarse) > 0
     assert pinched_any > 5
+
+
+def test_keep_holes_with_rate_control():
+    """--size counts the holes section: the file is in [0.85 S, S] and lists the caps."""
+    v, f = cut_sphere(0.6)
+    result = encode(v, f, size=3000, holes="keep", quality="fast", device="cpu", sh_degree=0)
+    assert 0.85 * 3000 <= len(result.data) <= 3000
+    assert tw.unpack(result.data).flags & FLAG_HOLES and result.stats["hole_faces"] > 0
