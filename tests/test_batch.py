@@ -384,3 +384,17 @@ def test_ray_gives_the_local_bytes(batch, tmp_path):
     assert result.exit_code == 1, result.output
     assert tw_outputs(ray_out) == tw_outputs(out)
     assert sorted(r["status"] for r in records(ray_out)) == ["failed"] + ["ok"] * 4
+
+
+def test_options_added_later_leave_older_manifest_records_valid():
+    """A manifest written before --layout and --holes existed records options without them; the same run today
+    (their defaults) must give the same recorded options, and other values must not."""
+    from tetweave_codec.runner.manifest import canonical
+    from tetweave_codec.runner.work import LATER_OPTIONS, EncodeOptions
+
+    today = EncodeOptions(points=2048, size=10240).as_dict()
+    assert not set(LATER_OPTIONS) & set(today)
+    assert EncodeOptions(**today) == EncodeOptions(points=2048, size=10240)
+    kept = EncodeOptions(points=2048, holes="keep", layout="grid").as_dict()
+    assert kept["holes"] == "keep" and kept["layout"] == "grid"
+    assert canonical(kept) != canonical(today)

@@ -41,6 +41,10 @@ def sh_degree_value(text: str) -> int | None:
     return {"auto": None, "none": -1}[text] if text in ("auto", "none") else int(text)
 
 
+# Options added to EncodeOptions after batch manifests existed, with the value runs before them had.
+LATER_OPTIONS = {"layout": "fit", "holes": "close"}
+
+
 @dataclass(frozen=True)
 class EncodeOptions:
     """`tetweave encode`'s options for one file, as the encoder API takes them (see `encoder_kwargs`).
@@ -73,7 +77,14 @@ class EncodeOptions:
     measure: bool = True
 
     def as_dict(self) -> dict:
-        return asdict(self)
+        """The options as a batch manifest records them (`EncodeOptions(**d)` rebuilds them); options added after
+        manifests existed are left out at the value every earlier run had (LATER_OPTIONS), so a re-run of a batch
+        started before them still skips the files it finished."""
+        d = asdict(self)
+        for name, value in LATER_OPTIONS.items():
+            if d[name] == value:
+                del d[name]
+        return d
 
     def encoder_kwargs(self, device) -> dict:
         """Keyword arguments of `tetweave_codec.encoder.encode` (device: the resolved torch.device); the one
