@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from tetweave_codec.geometry.closest import SurfaceTree
-from tetweave_codec.geometry.holes import face_ranks, without_pinches
+from tetweave_codec.geometry.holes import face_ranks, pinched_vertices, without_pinches
 
 # A centroid at most this far from the input (normalized frame) lies on it, whatever its nearest feature.
 ON_SURFACE = 1e-9
@@ -25,6 +25,8 @@ ON_EDGE = 1e-9
 # the other faces: a cap that sags into the shape (stanford-bunny 40 KB: 201 faces more than 0.01 from the input
 # whose nearest input point is on an inner wall, not on the rim) is still a cap.
 GROW_FACTOR = 8.0
+# Rounds of widening a removal around the vertices it would pinch (`_widen`) before giving faces back.
+WIDEN_ROUNDS = 8
 
 
 @dataclass
@@ -96,13 +98,31 @@ def _grow(faces: np.ndarray, cap: np.ndarray, distance: np.ndarray) -> np.ndarra
         cap |= grow
 
 
+def _widen(faces: np.ndarray, remove: np.ndarray) -> np.ndarray:
+    """remove (F,) bool with every face around a vertex it would pinch removed too, for up to WIDEN_ROUNDS rounds.
+    A pinch sits where two caps, or a cap and a stray far face, touch at a vertex; opening its whole fan keeps the
+    cap open where giving its faces back (`geometry.holes.without_pinches`, still the last resort) closes part of
+    it: bunny 40 KB Chamfer 2.38e-4 -> 2.33e-4, 10 KB 6.15e-4 -> 6.05e-4, 5 KB 1.085e-3 -> 1.073e-3 (same points)."""
+    remove = remove.copy()
+    n = int(faces.max()) + 1 if len(faces) else 0
+    for _ in range(WIDEN_ROUNDS):
+        if not remove.any() or remove.all():
+            break
+        pinched = pinched_vertices(faces[~remove], n)
+        if not len(pinched):
+            break
+        remove |= np.isin(faces, pinched).any(1)
+    return remove
+
+
 def hole_ranks(rim: InputRim, vertices: np.ndarray, extracted_faces: np.ndarray, grow: bool = False) -> np.ndarray:
-    """Sorted canonical ranks (K,) of the extracted faces to remove: the caps, less those around vertices the
-    removal would pinch (repeated until none is). vertices: the closed surface (normalized frame) whose first
-    vertices are the extracted surface's; extracted_faces (F0,3). Empty when nothing is to be removed or when the
-    removal would leave no face."""
+    """Sorted canonical ranks (K,) of the extracted faces to remove: the caps (`cap_faces`, grown with `grow`),
+    widened around the vertices their removal would pinch (`_widen`), less the faces around any still pinched
+    (repeated until none is). vertices: the closed surface (normalized frame) whose first vertices are the
+    extracted surface's; extracted_faces (F0,3). Empty when nothing is to be removed or when the removal would
+    leave no face."""
     f0 = np.asarray(extracted_faces, dtype=np.int64).reshape(-1, 3)
-    cap = without_pinches(f0, cap_faces(rim, vertices, f0, grow))
+    cap = without_pinches(f0, _widen(f0, cap_faces(rim, vertices, f0, grow)))
     if not cap.any() or cap.all():
         return np.zeros(0, dtype=np.int64)
     return np.sort(face_ranks(f0)[cap])
