@@ -150,6 +150,17 @@ def test_cap_faces_of_a_closed_surface_over_an_open_input():
     assert len(ranks) == cap.sum() and np.all(np.diff(ranks) > 0)
 
 
+def test_seams_are_not_holes():
+    """Duplicated vertices along a seam (as OBJ texture seams make them) do not make a rim."""
+    v, f = _mesh(manifold3d.Manifold.sphere(1.0, 32))
+    upper = v[f].mean(1)[:, 2] > 0
+    split_v = np.concatenate([v, v])  # the upper half's faces use a copy of every vertex
+    split_f = np.where(upper[:, None], f + len(v), f)
+    assert input_rim(split_v, split_f) is None
+    cut = split_f[v[f].mean(1)[:, 2] < 0.6]
+    assert input_rim(split_v, cut) is not None
+
+
 def test_keep_holes_end_to_end():
     """An open input: the file lists the cap faces, the decoder removes them; decode == report, 2-manifold with
     the input's boundary, no self-intersections, deterministic, and closer to the input than the closed file."""
