@@ -79,11 +79,12 @@ def run(args: argparse.Namespace) -> None:
                 subdivision=args.subdivision,
                 sh_degree=args.sh_degree,
                 layout=args.layout,
+                holes=args.holes,
             )
             stats = result.stats
             row = dict(
                 tag=args.tag, settings=changes, smoothing=args.smoothing, subdivision=args.subdivision,
-                sh_degree=args.sh_degree, layout=args.layout, mesh=name,
+                sh_degree=args.sh_degree, layout=args.layout, holes=args.holes, mesh=name,
                 size=parse_count(size),
                 seed=args.seed,
                 bytes=stats["bytes"], chamfer=stats["chamfer"], bxc=stats["bytes"] * stats["chamfer"],
@@ -134,6 +135,7 @@ def main(argv: list[str] | None = None) -> None:
     p_run.add_argument("--subdivision", type=int, default=None, help="Loop levels (default: the encoder's)")
     p_run.add_argument("--sh-degree", type=int, default=1, help="SH degree of the fit (default: 1, the encoder's)")
     p_run.add_argument("--layout", default="fit", help="where the points come from: fit or grid (encode's layout)")
+    p_run.add_argument("--holes", default="close", help="an open input's holes: close or keep (encode's --holes)")
     p_run.add_argument("--out", default="fit_ab.jsonl")
     p_cmp = sub.add_parser("compare", help="tabulate the rows of several variants")
     p_cmp.add_argument("rows")
