@@ -3,9 +3,11 @@ holes section, formats/holes.py; the decoder's side is geometry/holes.py).
 
 A TetWeave surface is closed, so where the input has a hole (a loop of boundary edges) the decoded surface spans
 it. A face is a *cap* face when the point of the input nearest to its centroid lies on a boundary edge of the
-input and is not the centroid itself: the face is off the input, beyond its rim. Removing the caps leaves the
-input's holes open; faces around a vertex that would be left with two fans are kept, so the result stays a
-2-manifold with boundary.
+input and is not the centroid itself: the face is off the input, beyond its rim; optionally the caps grow into
+neighbours far from the input (a cap that sags into the shape). Removing them leaves the input's holes open; where
+a vertex would be left with two fans, its whole fan goes too (a few rounds), and failing that its faces stay, so
+the result is a 2-manifold with boundary. `encoder.Job.with_holes` picks between plain and grown caps by the
+decoded mesh's Chamfer distance (benchmarks/results/holes.md).
 """
 
 from __future__ import annotations
