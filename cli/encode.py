@@ -305,6 +305,7 @@ def _encode_one(mesh: Path, output: Path | None, opts, quiet: bool) -> None:
         f"SH degree {'none' if st['sh_degree'] < 0 else st['sh_degree']}, "
         + (f"{st['layout']} layout, " if st.get("layout", "fit") != "fit" else "")
         + f"{st['vertices']:,} vertices, {st['faces']:,} faces"
+        + (f", the input's holes kept open ({st['hole_faces']:,} faces removed)" if st.get("hole_faces") else "")
     )
     click.echo(f"Chamfer distance to the input (normalized frame): {chamfer}")
     if "target_bytes" in st:

@@ -281,6 +281,7 @@ def test_cli_keep_holes(tmp_path):
     args += ["--iters", "40", "--sh-degree", "none", "--device", "cpu"]
     result = CliRunner().invoke(main, args)
     assert result.exit_code == 0, result.output
+    assert "holes kept open" in result.output
     info = CliRunner().invoke(main, ["info", str(out)])
     assert info.exit_code == 0 and "holes" in info.output and "faces removed" in info.output
 
