@@ -403,14 +403,12 @@ def _open_problem(v: np.ndarray, f: np.ndarray) -> str | None:
     """Why (v, f) is not a 2-manifold with boundary (None when it is): edges of one or two faces seen in opposite
     directions, every vertex used, one fan per vertex."""
     from tetweave_codec.geometry.holes import pinched_vertices
+    from tetweave_codec.geometry.marching_tets import check_manifold
 
-    half = np.stack([f, np.roll(f, -1, axis=1)], axis=2).reshape(-1, 2)
-    _, counts = np.unique(half, axis=0, return_counts=True)
-    if counts.max() > 1:
-        return "a directed edge used twice"
-    _, counts = np.unique(np.sort(half, axis=1), axis=0, return_counts=True)
-    if counts.max() > 2:
-        return "an edge of three or more faces"
+    try:
+        check_manifold(f, len(v), closed=False)  # every directed edge once: edges of one or two faces, oriented
+    except Exception as exc:  # noqa: BLE001
+        return str(exc)
     if len(np.unique(f)) != len(v) or not np.isfinite(v).all():
         return "unreferenced or non-finite vertices"
     if len(pinched_vertices(f, len(v))):

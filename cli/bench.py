@@ -77,26 +77,20 @@ def _degrees(ctx, param, value: str) -> list[int | None]:
     return out
 
 
-def _holes(ctx, param, value: str) -> list[str]:
-    """--holes: comma-separated choices of the encoder (encoder.HOLES)."""
-    from tetweave_codec.encoder import HOLES
+def _encoder_choices(constant: str, what: str):
+    """A click callback for a comma-separated list of choices the encoder names in `encoder.<constant>` (LAYOUTS,
+    HOLES): duplicates dropped, order kept, BadParameter on anything else."""
 
-    out = list(dict.fromkeys(_split(value)))
-    bad = [x for x in out if x not in HOLES]
-    if bad or not out:
-        raise click.BadParameter(f"holes are {', '.join(HOLES)}, comma-separated; got {value!r}")
-    return out
+    def callback(ctx, param, value: str) -> list[str]:
+        from tetweave_codec import encoder
 
+        allowed = getattr(encoder, constant)
+        out = list(dict.fromkeys(_split(value)))
+        if not out or any(x not in allowed for x in out):
+            raise click.BadParameter(f"{what} are {', '.join(allowed)}, comma-separated; got {value!r}")
+        return out
 
-def _layouts(ctx, param, value: str) -> list[str]:
-    """--layout: comma-separated layouts of the encoder (encoder.LAYOUTS)."""
-    from tetweave_codec.encoder import LAYOUTS
-
-    out = list(dict.fromkeys(_split(value)))
-    bad = [x for x in out if x not in LAYOUTS]
-    if bad or not out:
-        raise click.BadParameter(f"layouts are {', '.join(LAYOUTS)}, comma-separated; got {value!r}")
-    return out
+    return callback
 
 
 def _fractions(ctx, param, value: str) -> list[float]:
@@ -209,7 +203,7 @@ def _command_line(p: dict) -> str:
     "--layout",
     "layouts",
     default="fit",
-    callback=_layouts,
+    callback=_encoder_choices("LAYOUTS", "layouts"),
     help="tetweave layouts, comma-separated: fit, grid, best (see tetweave encode --layout; best only with --sizes); "
     "each is its own curve.",
 )
@@ -217,7 +211,7 @@ def _command_line(p: dict) -> str:
     "--holes",
     "holes",
     default="close",
-    callback=_holes,
+    callback=_encoder_choices("HOLES", "holes"),
     help="tetweave's treatment of open inputs' holes, comma-separated: close, keep (see tetweave encode --holes); "
     "each is its own curve.",
 )
