@@ -40,6 +40,50 @@ def test_size_model_is_monotonic_and_inverts():
         assert n * rate_control.bytes_per_point(n) == pytest.approx(rate_control.SIZE_AIM * s, rel=0.02)
 
 
+def test_step_factor_refines_only_accurate_inputs():
+    """k = 1 (the default steps) from the knee of the detail measure up and for an unknown one; MIN_STEP_FACTOR for
+    a piecewise-flat input (D = 0); monotonic in between."""
+    knee = rate_control.PRECISION_KNEE
+    assert rate_control.step_factor(knee) == 1.0
+    assert rate_control.step_factor(knee + 1.0) == 1.0
+    assert rate_control.step_factor(float("inf")) == 1.0
+    assert rate_control.step_factor(0.0) == pytest.approx(rate_control.MIN_STEP_FACTOR)
+    by_detail = [rate_control.step_factor(d) for d in np.linspace(0.0, 2.0, 9)]
+    assert by_detail == sorted(by_detail) and by_detail[0] < by_detail[4] < by_detail[-1]
+
+
+def test_finer_steps_are_paid_for_with_points():
+    """An accurate input (D = 0) gets fewer points (finer steps cost bytes), on a grid never coarser than the
+    default steps' point count would have; a detailed one is unchanged."""
+    for size in (2000, 5000, 20000, 40000, 80000):
+        fine, plain = rate_control.points_for_size(size, 0.0), rate_control.points_for_size(size)
+        assert 0.7 * plain < fine < plain
+        assert rate_control.points_for_size(size, 3.0) == plain
+        q, q_plain = rate_control.size_quantization(fine, size, 0.0), rate_control.default_quantization(plain)
+        assert q.position_bits >= q_plain.position_bits
+        expected = rate_control.default_quantization(fine).s_step * rate_control.MIN_STEP_FACTOR
+        assert q.s_step == pytest.approx(expected)
+        assert rate_control.size_quantization(plain, size, 3.0) == q_plain
+
+
+def test_input_detail_is_measured_once_per_job(monkeypatch):
+    """The decimation probe runs once per job; rate control's prior and steps read the same value."""
+    import fast_simplification
+
+    from tetweave_codec.encoder import Job
+
+    calls = []
+    real = fast_simplification.simplify
+    monkeypatch.setattr(fast_simplification, "simplify", lambda *a: calls.append(1) or real(*a))
+    job = Job(*bumpy_sphere(), 1, None, "default", "cpu", 0, "sdf", None)
+    first = rate_control.input_detail(job)
+    assert rate_control.input_detail(job) == first and job.detail == first and len(calls) == 1
+    assert rate_control.prior_error_points(job) == pytest.approx(
+        rate_control.PRIOR_BASE + rate_control.PRIOR_DETAIL_SLOPE * max(0.0, first - rate_control.PRIOR_DETAIL_KNEE)
+    )
+    assert len(calls) == 1
+
+
 @pytest.mark.parametrize("size", [2500, 6000])
 def test_size_target_lands_in_the_band(size):
     v, f = csg_shape()

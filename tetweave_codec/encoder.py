@@ -324,6 +324,7 @@ class Job:
         self.smoothing, self.subdivision = smoothing, subdivision
         self.layout = layout
         self.seconds: dict[str, float] = {}
+        self.detail: float | None = None  # rate_control.input_detail, once asked for
         self._band = None
         self.rim = None
         if keep_holes:

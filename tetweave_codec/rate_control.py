@@ -3,10 +3,11 @@
 Two targets, each within about 1.5x the time of one fit at the chosen size:
 
 * `encode_to_size(job, size)`: the file is at most `size` bytes and at least SIZE_FLOOR of it. The point count
-  comes from a bytes-per-point model (BYTES_PER_POINT); after the main stage the position grid and the steps are
-  chosen from the exact packed sizes of the finalized points (positions are exact; s and c are estimated from
-  their values before the late stage); after the one late stage the steps are nudged, without another late
-  stage, until the file lands in the band.
+  comes from a bytes-per-point model (BYTES_PER_POINT), at steps made finer for inputs a coarse decimation
+  already holds (CAD parts: `step_factor` of the prior's detail measure); after the main stage the position grid
+  and the steps are chosen from the exact packed sizes of the finalized points (positions are exact; s and c are
+  estimated from their values before the late stage); after the one late stage the steps are nudged, without
+  another late stage, until the file lands in the band.
 * `encode_to_error(job, max_error)`: the decoded mesh's Chamfer distance (the summary's metric) is at most
   `max_error`. The first fit's point count comes from a per-mesh prior, err ~ P / N with P from the Chamfer
   distance of a quick decimation of the input (prior_error_points); the measured errors steer at most two more
@@ -88,6 +89,20 @@ MAX_ERROR_FITS = 3
 PRIOR_SPREAD = 4.0  # refuse without fitting when the prior asks for more than this many times MAX_RATE_POINTS
 # Step multipliers tried on s (and c with them) around the default, from coarse to fine.
 STEP_SCALES = (2.8, 2.0, 1.4, 1.0, 0.7, 0.5)
+# Precision of --size files of shapes a coarse decimation already holds (piecewise-flat and CAD parts): the s and
+# c steps are multiplied by a factor k <= 1 of the prior's detail measure D (input_detail; fandisk 0.17, spot
+# 1.30, igea 2.10, stanford-bunny 2.31, a cube 0): log2 k = PRECISION_SLOPE * (D - PRECISION_KNEE), at least
+# log2 MIN_STEP_FACTOR, so k = 1 (the default steps) from spot's D up and fandisk gets k = 0.40. Why: such fits are
+# accurate enough that the s step, not the point count, sets their error. fandisk at a fixed 9,479-point fit:
+# steps x2 / x1 / x0.5 of the default gave 18.5 / 19.6 / 20.6 KB at Chamfer 1.30e-4 / 9.2e-5 / 7.7e-5, where 40 %
+# more points buy ~30 %. The point count pays for the finer steps: S_BYTES_PER_HALVING per halving (measured
+# 0.12-0.32 bytes per point on the shared meshes). --max-error keeps the default steps (measured on fandisk: -11 %
+# bytes at 1e-4 but +5.5 % at 2e-4, where the finer fit met the target by a margin the search does not spend).
+# benchmarks/results/rate_control.md, "Session 10".
+PRECISION_KNEE = 1.27
+PRECISION_SLOPE = 1.2
+MIN_STEP_FACTOR = 0.35
+S_BYTES_PER_HALVING = 0.19
 
 
 @dataclass(frozen=True)
@@ -120,12 +135,29 @@ def bytes_per_point(points: int) -> float:
     return BYTES_PER_POINT_4K + (BYTES_PER_POINT_16K - BYTES_PER_POINT_4K) * t
 
 
-def points_for_size(size: int) -> int:
-    """The grid point count whose file should be about SIZE_AIM * size bytes."""
-    n = SIZE_AIM * size / bytes_per_point(4096)
+def step_factor(detail: float) -> float:
+    """The factor k <= 1 on the default s and c steps of a --size fit of an input whose prior detail measure is
+    `detail` (see PRECISION_KNEE); 1 for inf (unknown)."""
+    return 2.0 ** min(max(PRECISION_SLOPE * (detail - PRECISION_KNEE), math.log2(MIN_STEP_FACTOR)), 0.0)
+
+
+def points_for_size(size: int, detail: float = math.inf) -> int:
+    """The grid point count whose file should be about SIZE_AIM * size bytes, at the steps of `step_factor`
+    (the default steps when `detail` is not given)."""
+    extra = -S_BYTES_PER_HALVING * math.log2(step_factor(detail))
+    n = SIZE_AIM * size / (bytes_per_point(4096) + extra)
     for _ in range(4):  # fixed point of n = aim / bytes_per_point(n)
-        n = SIZE_AIM * size / bytes_per_point(int(n))
+        n = SIZE_AIM * size / (bytes_per_point(int(n)) + extra)
     return int(n)
+
+
+def size_quantization(points: int, size: int, detail: float) -> Quantization:
+    """The quantization a --size fit of `points` points starts from: `default_quantization(points)` with steps x
+    `step_factor`, on a grid no coarser than that of the point count at the default steps (the finer steps take
+    points away; fandisk 5 KB: 1,958 points on a grid one bit coarser, +39 % bytes x Chamfer)."""
+    base = default_quantization(points)
+    bits = max(base.position_bits, default_quantization(points_for_size(size)).position_bits)
+    return _scaled(base, step_factor(detail), bits)
 
 
 def _scaled(quant: Quantization, scale: float, bits: int | None = None) -> Quantization:
@@ -144,7 +176,8 @@ def encode_to_size(job, size: int, *, measure: bool = True):
         raise InputError(f"a size of {size:,} bytes is below the smallest useful .tw file ({MIN_FILE_BYTES} bytes)")
     if job.layout == "grid":
         return _grid_to_size(job, size, measure)
-    points = points_for_size(size)
+    detail = input_detail(job)
+    points = points_for_size(size, detail)
     if points > MAX_RATE_POINTS:
         largest = int(MAX_RATE_POINTS * bytes_per_point(MAX_RATE_POINTS))
         raise InputError(
@@ -152,7 +185,7 @@ def encode_to_size(job, size: int, *, measure: bool = True):
             f"(~{largest:,} bytes); use --points for larger files"
         )
     points = max(points, MIN_RATE_POINTS)
-    base = default_quantization(points)
+    base = size_quantization(points, size, detail)
     ctx, params = job.main_stage(points, base)
 
     # Positions are final once snapped: their section's size is exact. Try the default grid and one bit either
@@ -169,22 +202,26 @@ def encode_to_size(job, size: int, *, measure: bool = True):
                 quant = _scaled(base, scale, bits)
                 est = len(job.pack(requantize(fin.points, fin.cells, fin.s, fin.c, quant, job.sh_degree), ctx))
                 candidates.append(Candidate(est, bits, scale, quant))
-        fitting = [c for c in candidates if c.estimate <= SIZE_AIM * size]
-        # Prefer the default grid when it fits at some step, since a finer grid buys little error (see
-        # default_quantization); otherwise the largest estimate under the aim; otherwise the smallest file.
-        on_default = [c for c in fitting if c.position_bits == base.position_bits and c.scale <= 2.0]
-        if on_default:
-            chosen = max(on_default, key=lambda c: c.estimate)
-        elif fitting:
-            chosen = max(fitting, key=lambda c: c.estimate)
-        else:
-            chosen = min(candidates, key=lambda c: c.estimate)
+        chosen = _choose(candidates, base, size, finals, ctx, job)
         bits, scale = chosen.position_bits, chosen.scale
         result = complete(finals[bits], ctx, chosen.quantization)
     data = job.pack(result, ctx)
     result, data = _into_band(job, ctx, result, data, size)
     extra = {"target_bytes": size, "rate_control": f"{points} points, b {bits}, steps x{scale:g}"}
     return job.result(result, ctx, points, measure=measure, data=data, extra=extra)
+
+
+def _choose(candidates: list[Candidate], base: Quantization, size: int, finals, ctx, job) -> Candidate:
+    """The quantization a --size fit is finished with."""
+    fitting = [c for c in candidates if c.estimate <= SIZE_AIM * size]
+    # Prefer the default grid when it fits at some step, since a finer grid buys little error (see
+    # default_quantization); otherwise the largest estimate under the aim; otherwise the smallest file.
+    on_default = [c for c in fitting if c.position_bits == base.position_bits and c.scale <= 2.0]
+    if on_default:
+        return max(on_default, key=lambda c: c.estimate)
+    if fitting:
+        return max(fitting, key=lambda c: c.estimate)
+    return min(candidates, key=lambda c: c.estimate)
 
 
 def _grid_to_size(job, size: int, measure: bool):
@@ -350,25 +387,38 @@ def mesh_prior(job) -> tuple[float, float]:
 
 
 def prior_error_points(job) -> float:
-    """P of the per-mesh prior err ~ P / N + F (see PRIOR_BASE): from the Chamfer distance of a quadric decimation
-    of the normalized input to PRIOR_PROBE_VERTICES vertices (fast_simplification, deterministic)."""
+    """P of the per-mesh prior err ~ P / N + F (see PRIOR_BASE), from `input_detail`."""
+    base = PRIOR_BASE * (SUBDIVIDED_BASE_FACTOR if job.subdivision else 1.0)
+    detail = input_detail(job)
+    if not math.isfinite(detail):
+        return PRIOR_ERROR_POINTS
+    return base + PRIOR_DETAIL_SLOPE * max(0.0, detail - PRIOR_DETAIL_KNEE)
+
+
+def input_detail(job) -> float:
+    """D of the prior: PRIOR_PROBE_VERTICES x the Chamfer distance (normalized frame) of a quadric decimation of
+    the input to that many vertices (fast_simplification, deterministic); 0 for an input already that coarse, inf
+    when the decimation leaves nothing. Computed once per job (`job.detail`)."""
+    if job.detail is not None:
+        return job.detail
     import fast_simplification
 
     from tetweave_codec.metrics import chamfer_distance
 
     v, f = job.normalized, job.f
-    base = PRIOR_BASE * (SUBDIVIDED_BASE_FACTOR if job.subdivision else 1.0)
     if len(v) <= 2 * PRIOR_PROBE_VERTICES:  # already coarse: no detail beyond what a fit resolves
-        return base
+        job.detail = 0.0
+        return job.detail
     reduction = 1.0 - 2.0 * PRIOR_PROBE_VERTICES / len(f)
     dv, df = fast_simplification.simplify(
         np.ascontiguousarray(v, dtype=np.float32), np.ascontiguousarray(f, dtype=np.int32), reduction
     )
     if not len(df):
-        return PRIOR_ERROR_POINTS
+        job.detail = math.inf
+        return job.detail
     cd = chamfer_distance(v, f, dv, df, n_samples=PRIOR_PROBE_SAMPLES, seed=job.seed, normalize=False)
-    detail = len(dv) * cd
-    return base + PRIOR_DETAIL_SLOPE * max(0.0, detail - PRIOR_DETAIL_KNEE)
+    job.detail = len(dv) * cd
+    return job.detail
 
 
 def hole_cap_error(vertices: np.ndarray, faces: np.ndarray) -> float:
