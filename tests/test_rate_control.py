@@ -40,29 +40,36 @@ def test_size_model_is_monotonic_and_inverts():
         assert n * rate_control.bytes_per_point(n) == pytest.approx(rate_control.SIZE_AIM * s, rel=0.02)
 
 
-def test_step_factor_refines_only_accurate_inputs():
-    """k = 1 (the default steps) from the knee of the detail measure up and for an unknown one; MIN_STEP_FACTOR for
-    a piecewise-flat input (D = 0); monotonic in between."""
+def test_step_factor_refines_only_accurate_inputs_at_large_counts():
+    """k = 1 (the default steps) from the knee of the detail measure up, for an unknown one and below the ramp's
+    first count; MIN_STEP_FACTOR for a piecewise-flat input (D = 0) from the ramp's last count; monotonic between."""
+    lo, hi = rate_control.PRECISION_RAMP_POINTS
     knee = rate_control.PRECISION_KNEE
-    assert rate_control.step_factor(knee) == 1.0
-    assert rate_control.step_factor(knee + 1.0) == 1.0
-    assert rate_control.step_factor(float("inf")) == 1.0
-    assert rate_control.step_factor(0.0) == pytest.approx(rate_control.MIN_STEP_FACTOR)
-    by_detail = [rate_control.step_factor(d) for d in np.linspace(0.0, 2.0, 9)]
+    assert rate_control.step_factor(knee, 10 * hi) == 1.0
+    assert rate_control.step_factor(knee + 1.0, 10 * hi) == 1.0
+    assert rate_control.step_factor(float("inf"), 10 * hi) == 1.0
+    assert rate_control.step_factor(0.0, lo) == 1.0
+    assert rate_control.step_factor(0.0, hi) == pytest.approx(rate_control.MIN_STEP_FACTOR)
+    assert rate_control.step_factor(0.0, 10 * hi) == pytest.approx(rate_control.MIN_STEP_FACTOR)
+    by_count = [rate_control.step_factor(0.5, int(n)) for n in np.geomspace(lo / 2, 2 * hi, 12)]
+    assert by_count == sorted(by_count, reverse=True) and by_count[0] > by_count[-1]
+    by_detail = [rate_control.step_factor(d, hi) for d in np.linspace(0.0, 2.0, 9)]
     assert by_detail == sorted(by_detail) and by_detail[0] < by_detail[4] < by_detail[-1]
 
 
 def test_finer_steps_are_paid_for_with_points():
-    """An accurate input (D = 0) gets fewer points (finer steps cost bytes), on a grid never coarser than the
-    default steps' point count would have; a detailed one is unchanged."""
-    for size in (2000, 5000, 20000, 40000, 80000):
+    """An accurate input (D = 0) gets fewer points at large sizes (finer steps cost bytes) and the same at small
+    ones; its grid is never coarser than the default steps' point count would have; a detailed one is unchanged."""
+    for size in (2000, 5000, 10000):
+        assert rate_control.points_for_size(size, 0.0) == rate_control.points_for_size(size)
+    for size in (20000, 40000, 80000):
         fine, plain = rate_control.points_for_size(size, 0.0), rate_control.points_for_size(size)
         assert 0.7 * plain < fine < plain
         assert rate_control.points_for_size(size, 3.0) == plain
         q, q_plain = rate_control.size_quantization(fine, size, 0.0), rate_control.default_quantization(plain)
         assert q.position_bits >= q_plain.position_bits
-        expected = rate_control.default_quantization(fine).s_step * rate_control.MIN_STEP_FACTOR
-        assert q.s_step == pytest.approx(expected)
+        expected = rate_control.default_quantization(fine).s_step * rate_control.step_factor(0.0, fine)
+        assert q.s_step == pytest.approx(expected) and q.s_step < rate_control.default_quantization(fine).s_step
         assert rate_control.size_quantization(plain, size, 3.0) == q_plain
 
 

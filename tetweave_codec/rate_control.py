@@ -96,12 +96,16 @@ STEP_SCALES = (2.8, 2.0, 1.4, 1.0, 0.7, 0.5)
 # accurate enough that the s step, not the point count, sets their error. fandisk at a fixed 9,479-point fit:
 # steps x2 / x1 / x0.5 of the default gave 18.5 / 19.6 / 20.6 KB at Chamfer 1.30e-4 / 9.2e-5 / 7.7e-5, where 40 %
 # more points buy ~30 %. The point count pays for the finer steps: S_BYTES_PER_HALVING per halving (measured
-# 0.12-0.32 bytes per point on the shared meshes). --max-error keeps the default steps (measured on fandisk: -11 %
+# 0.12-0.32 bytes per point on the shared meshes). The factor ramps in between PRECISION_RAMP_POINTS[0] and [1]
+# fit points (log scale): below, fewer points cost the creases more than finer steps buy (fandisk 5 / 10 KB with
+# k = 0.4: Chamfer within noise, edge Chamfer +61 % / +54 %; CSG parts at 1-2 KB: edge Chamfer worse at 5 of 7,
+# though the cube at 2 KB fell from 7.6e-4 to 3.0e-5). --max-error keeps the default steps (measured on fandisk: -11 %
 # bytes at 1e-4 but +5.5 % at 2e-4, where the finer fit met the target by a margin the search does not spend).
 # benchmarks/results/rate_control.md, "Session 10".
 PRECISION_KNEE = 1.27
 PRECISION_SLOPE = 1.2
 MIN_STEP_FACTOR = 0.35
+PRECISION_RAMP_POINTS = (6144, 8192)
 S_BYTES_PER_HALVING = 0.19
 
 
@@ -135,19 +139,25 @@ def bytes_per_point(points: int) -> float:
     return BYTES_PER_POINT_4K + (BYTES_PER_POINT_16K - BYTES_PER_POINT_4K) * t
 
 
-def step_factor(detail: float) -> float:
-    """The factor k <= 1 on the default s and c steps of a --size fit of an input whose prior detail measure is
-    `detail` (see PRECISION_KNEE); 1 for inf (unknown)."""
-    return 2.0 ** min(max(PRECISION_SLOPE * (detail - PRECISION_KNEE), math.log2(MIN_STEP_FACTOR)), 0.0)
+def step_factor(detail: float, points: int) -> float:
+    """The factor k <= 1 on the default s and c steps of a --size fit of `points` points of an input whose prior
+    detail measure is `detail` (see PRECISION_KNEE); 1 for inf (unknown) and below the ramp."""
+    full = min(max(PRECISION_SLOPE * (detail - PRECISION_KNEE), math.log2(MIN_STEP_FACTOR)), 0.0)
+    lo, hi = PRECISION_RAMP_POINTS
+    ramp = min(max(math.log2(max(points, 1) / lo) / math.log2(hi / lo), 0.0), 1.0)
+    return 2.0 ** (full * ramp)
 
 
 def points_for_size(size: int, detail: float = math.inf) -> int:
     """The grid point count whose file should be about SIZE_AIM * size bytes, at the steps of `step_factor`
     (the default steps when `detail` is not given)."""
-    extra = -S_BYTES_PER_HALVING * math.log2(step_factor(detail))
-    n = SIZE_AIM * size / (bytes_per_point(4096) + extra)
-    for _ in range(4):  # fixed point of n = aim / bytes_per_point(n)
-        n = SIZE_AIM * size / (bytes_per_point(int(n)) + extra)
+
+    def per_point(n: int) -> float:
+        return bytes_per_point(n) - S_BYTES_PER_HALVING * math.log2(step_factor(detail, n))
+
+    n = SIZE_AIM * size / per_point(4096)
+    for _ in range(8):  # fixed point of n = aim / per_point(n)
+        n = SIZE_AIM * size / per_point(int(n))
     return int(n)
 
 
@@ -157,7 +167,7 @@ def size_quantization(points: int, size: int, detail: float) -> Quantization:
     points away; fandisk 5 KB: 1,958 points on a grid one bit coarser, +39 % bytes x Chamfer)."""
     base = default_quantization(points)
     bits = max(base.position_bits, default_quantization(points_for_size(size)).position_bits)
-    return _scaled(base, step_factor(detail), bits)
+    return _scaled(base, step_factor(detail, points), bits)
 
 
 def _scaled(quant: Quantization, scale: float, bits: int | None = None) -> Quantization:
