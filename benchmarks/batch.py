@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tetweave_codec.benchmarks.methods import Method
+from tetweave_codec.benchmarks.methods import TETWEAVE, Method
 from tetweave_codec.metrics.common import MetricOptions
 from tetweave_codec.metrics.fidelity import prepare_reference
 from tetweave_codec.metrics.summary import evaluate, mesh_report
@@ -78,6 +78,7 @@ class MeshResult:
     faces: np.ndarray
     rows: list[dict] = field(default_factory=list)
     decoded: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+    files: dict[str, bytes] = field(default_factory=dict)
 
 
 def find_meshes(path: str | Path) -> list[Path]:
@@ -181,8 +182,9 @@ def input_row(name: str, vertices: np.ndarray, faces: np.ndarray, options: Metri
 
 def run_method(
     name: str, method: Method, vertices: np.ndarray, faces: np.ndarray, reference, options: MetricOptions
-) -> tuple[dict, tuple[np.ndarray, np.ndarray] | None]:
-    """Encode, decode and measure one method on one mesh; returns (row, decoded mesh or None on failure)."""
+) -> tuple[dict, tuple[np.ndarray, np.ndarray] | None, bytes | None]:
+    """Encode, decode and measure one method on one mesh; returns (row, decoded mesh, encoded bytes), the last
+    two None on failure."""
     row = _empty_row(name, method)
     n_in = _referenced_vertices(faces)
     try:
@@ -200,10 +202,10 @@ def run_method(
         metrics = evaluate(reference, v_out, f_out, options)
         row["metrics_s"] = time.perf_counter() - t0
         row.update({k: v for k, v in metrics.items() if k in COLUMNS})
-        return row, (v_out, f_out)
+        return row, (v_out, f_out), data
     except Exception as exc:  # one failure must not stop the batch; it is reported in the row
         row["error"] = _error_text(exc)
-        return row, None
+        return row, None, None
 
 
 def run_mesh(
@@ -228,10 +230,12 @@ def run_mesh(
         return result
     for i, method in enumerate(methods, 1):
         say(f"{name}: [{i}/{len(methods)}] {method.name} ...")
-        row, decoded = run_method(name, method, vertices, faces, reference, opts)
+        row, decoded, data = run_method(name, method, vertices, faces, reference, opts)
         result.rows.append(row)
         if decoded is not None:
             result.decoded[method.name] = decoded
+            if method.family == TETWEAVE:
+                result.files[method.name] = data
             say(
                 f"{name}: [{i}/{len(methods)}] {method.name}: {row['bytes']:,} bytes, "
                 f"CD {row['chamfer']:.3g}, {row['n_faces']:,} faces "

@@ -26,6 +26,7 @@ from tetweave_codec.cli.common import (
 )
 from tetweave_codec.errors import TetweaveError
 from tetweave_codec.geometry.sh import SH_DEGREE_MAX
+from tetweave_codec.meshio import write_bytes_atomic
 
 
 def _split(text: str) -> list[str]:
@@ -126,6 +127,23 @@ def _fit_progress(say, label: str, steps: int = 4):
             say(f"  {label}: {stage} stage {done}/{total}{loss}{pts}")
 
     return callback
+
+
+def _file_name(setting: str) -> str:
+    """A method setting as a file name: "size 5120 sh auto" -> "size-5120-sh-auto.tw"."""
+    return "".join(ch if ch.isalnum() or ch in "._+" else "-" for ch in setting.strip()) + ".tw"
+
+
+def _write_files(result, folder: Path, say) -> None:
+    """The mesh's tetweave files as FOLDER/MESH/SETTING.tw, for `tetweave info` and lossless coding studies
+    (benchmarks/entropy_coding.py) without another fit."""
+    for name, data in result.files.items():
+        path = folder / result.name / _file_name(name.removeprefix(f"{TETWEAVE} "))
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            write_bytes_atomic(path, data)
+        except OSError as exc:  # a file must not cost the numbers
+            say(f"{result.name}: could not write {path}: {exc}")
 
 
 def _command_line(p: dict) -> str:
@@ -362,6 +380,7 @@ def bench(
 
     def on_mesh(result) -> None:
         rows.extend(result.rows)
+        _write_files(result, out_dir / "files", say)
         names = []
         jobs = [
             (

@@ -121,7 +121,7 @@ def test_decimation_cache_shares_one_decimation_per_fraction_and_mesh():
     methods[0].encode(v2, f2)
     assert calls == [0.2, 0.1, 0.2] and methods[0].reused_seconds() == 0.0
     # the batch states the reused decimation's time in every row that used it
-    row, _ = run_method("ball", methods[2], v2, f2, prepare_reference(v2, f2, OPTIONS), OPTIONS)
+    row, _, _ = run_method("ball", methods[2], v2, f2, prepare_reference(v2, f2, OPTIONS), OPTIONS)
     assert row["error"] == "" and row["encode_s"] >= methods[2].reused_seconds() > 0
 
 
@@ -516,3 +516,24 @@ def test_bench_runner_passes_auto_degree_and_grid_layout(mesh_dir):
     (row,) = [r for r in run_batch(paths, [pre], OPTIONS) if r["family"] == "tetweave"]
     assert row["error"] == "" and row["watertight"] and row["layout"] == "grid"
     assert row["bytes"] == len(method.encode(*sphere(1.0, 40)))
+
+
+def test_bench_keeps_the_tetweave_files(mesh_dir, tmp_path):
+    """`tetweave bench` writes each tetweave file as OUT/files/MESH/SETTING.tw: the bytes its row measured, which
+    decode to the row's mesh; classical outputs are not kept."""
+    from tetweave_codec.decoder import decode
+
+    out = tmp_path / "o"
+    args = ["bench", str(mesh_dir), "--out", str(out), "--methods", "draco,tetweave", "--points", "256"]
+    args += ["--sh-degree", "1", "--quality", "fast", "--iters", "4", "--draco-bits", "11", "--device", "cpu"]
+    result = CliRunner().invoke(main, [*args, "--samples", "2000", "--no-pictures"])
+    assert result.exit_code == 0, result.output
+    with open(out / "results.csv") as fh:
+        rows = [r for r in csv.DictReader(fh) if r["family"] == "tetweave"]
+    assert sorted(r["mesh"] for r in rows) == ["ball", "block"]
+    for row in rows:
+        path = out / "files" / row["mesh"] / "256-pts-sh1.tw"
+        data = path.read_bytes()
+        assert len(data) == int(row["bytes"])
+        assert len(decode(data)[1]) == int(row["n_faces"])
+    assert sorted(p.name for p in (out / "files").rglob("*") if p.is_file()) == ["256-pts-sh1.tw"] * 2
