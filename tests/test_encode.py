@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
+from tetweave_codec import encoder
 from tetweave_codec.cli.main import main
 from tetweave_codec.decoder import decode
 from tetweave_codec.encoder import encode
@@ -189,6 +190,21 @@ def test_cli_bad_mesh_inputs(tmp_path, content, needle):
     assert needle in lines[0].lower()
     assert not out.exists()
     assert not any(p.name.startswith(".") or p.suffix == ".tmp" for p in tmp_path.iterdir())
+
+
+def test_cli_flat_input_is_one_line(tmp_path):
+    """A flat sheet off the axes (alligator of common-3d-test-models is one) encloses no volume: one line, exit 2,
+    before any fit (it used to fit and then say that the fit produced no surface)."""
+    src = _write_obj(tmp_path / "in.obj", "v 0 0 0\nv 1 0 .5\nv 0 1 .25\nv 1 1 .75\nf 1 2 3\nf 2 4 3\n")
+    out = tmp_path / "out.tw"
+    res = CliRunner().invoke(main, ["encode", str(src), "-o", str(out), "--iters", "2", "--points", "256", "-q"])
+    assert res.exit_code == 2 and "Traceback" not in res.output
+    (line,) = [ln for ln in res.output.strip().splitlines() if ln]
+    assert line.startswith("tetweave: error: mesh: every vertex lies in one plane")
+    assert not out.exists()
+    # a sheet 1e-6 thick is not flat to this check (it may still fit badly, but that is the fit's to say)
+    v = np.array([[0, 0, 0], [1, 0, 0.5], [0, 1, 0.25], [1, 1, 0.75 + 1e-6]])
+    assert not encoder._is_planar(v) and encoder._is_planar(v[:, [0, 1, 1]] * [1, 1, 0.3])
 
 
 @pytest.mark.parametrize(

@@ -94,7 +94,25 @@ def _validate(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.n
     validate_mesh(v, f)
     if not face_areas(v, f).any():
         raise InputError("mesh: every triangle has zero area")
+    if _is_planar(v[np.unique(f)]):
+        raise InputError(
+            "mesh: every vertex lies in one plane, so the surface encloses no volume; tetweave encodes closed or "
+            "nearly closed shapes"
+        )
     return v, f
+
+
+# Relative thickness (smallest over largest singular value of the centred vertices) below which a mesh counts as
+# planar: a float64 plane rotated off the axes measures ~1e-16; a sheet 1e-6 thick as 1e-6.
+PLANAR_THICKNESS = 1e-9
+
+
+def _is_planar(points: np.ndarray) -> bool:
+    """Whether the points (V,3) lie in one plane, up to PLANAR_THICKNESS of their spread."""
+    if len(points) < 4:
+        return True
+    sv = np.linalg.svd(points - points.mean(axis=0), compute_uv=False)  # descending
+    return bool(sv[-1] < PLANAR_THICKNESS * sv[0])
 
 
 def encode(
