@@ -81,9 +81,6 @@ class Weights:
     # One run at 10 KB, bytes x Chamfer against 0: 10 -> spot 0.963, igea 0.963 (normal consistency +0.0009 /
     # +0.0029, edge Chamfer 0.30x / 0.37x); 40 -> 0.995 / 0.997 (NC +0.0011 / +0.0038).
     surface_normals: float = 10.0
-    # kappa of the late stage's s-rate term (fit/rate.py: the s stream's estimated bits at the rate-distortion
-    # slope kappa * D / R); 0 = off.
-    s_rate: float = 0.0
 
     def uses_images(self) -> bool:
         """Whether the loss renders the mesh (any image term weighted); else the iterations skip rasterization."""

@@ -22,7 +22,6 @@ from torch import Tensor
 
 from tetweave_codec.fit.config import Quantization
 from tetweave_codec.fit.initialize import MIN_ABS_S
-from tetweave_codec.fit.rate import SRate
 from tetweave_codec.fit.step import FitContext, Params, backward, regularized_loss, triangulate
 from tetweave_codec.formats import quantize as Q
 from tetweave_codec.geometry.active import active_mask
@@ -174,7 +173,7 @@ def complete(fin: Finalized, ctx: FitContext, quant: Quantization | None) -> Fin
     if quant is not None and quant.position_bits != fin.position_bits:
         raise ValueError("the quantization's position bits differ from the finalized grid's")
     quantizer = None if quant is None else _Quantizer(quant, ctx.config.sh_degree)
-    s, c = late_stage(fin.points, fin.s, fin.c, ctx, quantizer, keep_signs=fin.keep_signs, cells=fin.cells)
+    s, c = late_stage(fin.points, fin.s, fin.c, ctx, quantizer, keep_signs=fin.keep_signs)
     ctx.seconds["late"] = ctx.seconds.get("late", 0.0) + time.perf_counter() - t0
     if quant is None:
         s16, c16 = round_float16(s, c)
@@ -227,7 +226,6 @@ def late_stage(
     ctx: FitContext,
     quantizer: _Quantizer | None = None,
     keep_signs: bool = False,
-    cells: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Optimize s and c on fixed points (N,3) float64 and their one triangulation; returns latent s, c (float32).
 
@@ -235,18 +233,12 @@ def late_stage(
     keep_signs: no s changes sign (each is clamped to its side after every step). The grid layout's signs are the
     input's inside and outside; a flip there made a sheet between band points across empty space (spot, b 6:
     119 flips, 210 vertices 0.01-0.085 from the input, Chamfer 2.7e-4 -> 8.3e-4).
-    cells (N,3): the points' grid cells in canonical order (version 2); with them and weights.s_rate > 0 the loss
-    adds the s stream's estimated bits (fit/rate.py).
     """
     sch = ctx.config.schedule
     params = Params(points.astype(np.float32), s, c, ctx.device, ctx.config.lr, optimize_points=False)
     grid = triangulate(points, ctx.backend, ctx.device)
     base_lrs = [g["lr"] for g in params.opt_sc.param_groups]
     inside = torch.as_tensor(np.asarray(s) < 0, device=params.s.device) if keep_signs else None
-    kappa = ctx.config.weights.s_rate
-    rate = None
-    if quantizer is not None and cells is not None and kappa > 0:
-        rate = SRate(cells, quantizer.s_step, params.s.device)
     for it in range(sch.late_iters):
         if quantizer is not None:
             # Adam moves every latent value by about its step size per iteration: with the s step of the
@@ -257,11 +249,6 @@ def late_stage(
         views = ctx.random_views()
         s_in, c_in = (params.s, params.c) if quantizer is None else quantizer.straight_through(params.s, params.c)
         loss, parts = regularized_loss(ctx, params.points, s_in, c_in, grid, views, with_grid_terms=False)
-        if rate is not None:
-            chamfer_loss = ctx.config.weights.surface * parts.get("surface", 0.0)
-            bits = rate.bits(s_in)
-            loss = loss + rate.weight(chamfer_loss, kappa) * bits
-            parts["s_bits"] = float(bits.detach())
         backward(loss, params)
         params.opt_sc.step()
         params.opt_sc.zero_grad(set_to_none=True)
