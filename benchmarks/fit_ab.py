@@ -133,7 +133,9 @@ def main(argv: list[str] | None = None) -> None:
     p_run.add_argument("--seed", type=int, default=0)
     p_run.add_argument("--smoothing", type=int, default=None, help="Taubin steps (default: the encoder's)")
     p_run.add_argument("--subdivision", type=int, default=None, help="Loop levels (default: the encoder's)")
-    p_run.add_argument("--sh-degree", type=int, default=1, help="SH degree of the fit (default: 1, the encoder's)")
+    p_run.add_argument(
+        "--sh-degree", type=int, default=None, help="SH degree of the fit (default: the encoder's choice)"
+    )
     p_run.add_argument("--layout", default="fit", help="where the points come from: fit or grid (encode's layout)")
     p_run.add_argument("--holes", default="close", help="an open input's holes: close or keep (encode's --holes)")
     p_run.add_argument("--out", default="fit_ab.jsonl")
