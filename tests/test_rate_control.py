@@ -252,3 +252,36 @@ def test_max_error_beyond_the_prior_is_refused_before_any_fit(monkeypatch, floor
         rate_control.encode_to_error(None, 5e-4 if floor else 2e-5)
     assert needle in str(info.value) and "\n" not in str(info.value)
     assert ("holes" in str(info.value)) == (floor > 0)
+
+
+def test_choose_keeps_the_steps_balanced_before_the_default_grid(monkeypatch):
+    """`_choose`: the default grid at steps up to BALANCED_STEP_SCALE x the default first, then another grid
+    within that, then the rule before (default grid up to x2.0, else the largest estimate under the aim, else the
+    smallest file)."""
+    from tetweave_codec.fit.config import default_quantization
+    from tetweave_codec.rate_control import BALANCED_STEP_SCALE, SIZE_AIM, Candidate, _choose
+
+    assert BALANCED_STEP_SCALE == 1.4
+    base = default_quantization(9479)  # b 9
+    size = 20480
+    aim = SIZE_AIM * size
+
+    def cands(*rows):
+        return [Candidate(int(est), bits, scale, None) for bits, scale, est in rows]
+
+    def pick(rows):
+        chosen = _choose(cands(*rows), base, size, None, None, None)
+        return chosen.position_bits, chosen.scale
+
+    # igea 20 KB: the default grid fits only at x2.8 (and x2.0 just over the aim); b 8 fits at x1
+    rows = [(9, 2.8, aim - 600), (9, 2.0, aim + 400), (9, 1.4, aim + 1300), (8, 1.0, aim - 700), (8, 0.7, aim + 1000)]
+    assert pick(rows) == (8, 1.0)
+    monkeypatch.setattr(rate_control, "BALANCED_STEP_SCALE", None)  # the rule before: the default grid first
+    assert pick(rows) == (9, 2.8)
+    monkeypatch.undo()
+    # the default grid fitting within the balanced steps wins over a coarser grid with a larger estimate
+    assert pick([(9, 1.4, aim - 900), (8, 1.0, aim - 100)]) == (9, 1.4)
+    # nothing within the balanced steps: the default grid up to x2.0, then the largest estimate under the aim
+    assert pick([(9, 2.0, aim - 50), (8, 2.8, aim - 10), (9, 1.4, aim + 5)]) == (9, 2.0)
+    assert pick([(9, 2.8, aim - 50), (8, 2.8, aim - 10)]) == (8, 2.8)
+    assert pick([(9, 2.8, aim + 50), (8, 2.8, aim + 10)]) == (8, 2.8)  # none fits: the smallest
