@@ -70,7 +70,8 @@ class MeshResult:
     """Everything measured on one input mesh.
 
     name: label of the mesh (file stem, made unique). vertices (V,3), faces (F,3): the input. rows: result
-    rows (the input row first). decoded: method name -> decoded (vertices, faces), successes only.
+    rows (the input row first). decoded: method name -> decoded (vertices, faces), successes only. files:
+    tetweave setting -> its `.tw` bytes, successes only (classical outputs are not kept).
     """
 
     name: str
@@ -235,7 +236,7 @@ def run_mesh(
         if decoded is not None:
             result.decoded[method.name] = decoded
             if method.family == TETWEAVE:
-                result.files[method.name] = data
+                result.files[method.setting] = data
             say(
                 f"{name}: [{i}/{len(methods)}] {method.name}: {row['bytes']:,} bytes, "
                 f"CD {row['chamfer']:.3g}, {row['n_faces']:,} faces "

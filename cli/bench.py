@@ -137,8 +137,8 @@ def _file_name(setting: str) -> str:
 def _write_files(result, folder: Path, say) -> None:
     """The mesh's tetweave files as FOLDER/MESH/SETTING.tw, for `tetweave info` and lossless coding studies
     (benchmarks/entropy_coding.py) without another fit."""
-    for name, data in result.files.items():
-        path = folder / result.name / _file_name(name.removeprefix(f"{TETWEAVE} "))
+    for setting, data in result.files.items():
+        path = folder / result.name / _file_name(setting)
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
             write_bytes_atomic(path, data)
