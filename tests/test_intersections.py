@@ -179,3 +179,12 @@ def test_only_restricts_to_pairs_with_a_marked_face(seed, n_faces, kind):
     assert not (out[True] & ~full).any()
     pairs_marked = full & only
     assert not (pairs_marked & ~out[True]).any()
+
+
+def test_faces_whose_boxes_share_no_grid_cell(path):
+    """Two small faces far apart (no candidate pair at all; found by hypothesis): nothing crosses."""
+    v = np.array([[0.13, -0.08, 0.91], [0.17, 0.05, 1.02], [0.15, 0.0, 0.95], [0.55, -1.08, 0.83], [0.62, -0.93, 0.93],
+                  [0.6, -1.0, 0.9]])  # fmt: skip
+    f = np.array([[0, 1, 2], [3, 4, 5]])
+    assert not I.self_intersecting_faces(v, f).any()
+    assert I._grid_pairs(v[[0, 3]], v[[1, 4]], 0.278)[0].shape == (0, 2)

@@ -65,6 +65,8 @@ def _grid_pairs(lo: np.ndarray, hi: np.ndarray, cell: float) -> tuple[np.ndarray
     total = int(after.sum())
     if total > _MAX_CANDIDATE_PAIRS:
         return None, "finer"
+    if total == 0:  # no two boxes share a cell (the dedupe below needs one pair)
+        return np.zeros((0, 2), dtype=np.int64), ""
     first = np.repeat(np.arange(len(key)), after)
     step = np.arange(total) - np.repeat(np.cumsum(after) - after, after) + 1
     a, b = box[first], box[first + step]
