@@ -141,9 +141,10 @@ def _progress_lines(every_s: float = PROGRESS_LINE_SECONDS):
 )
 @click.option(
     "--position-bits",
-    type=click.IntRange(6, 16),
+    type=click.FloatRange(6, 16),
     default=None,
-    help="v2: grid cells per axis = 2^bits over [-1.2, 1.2]^3.  [default: 8 at 4k points, one more per 4x points]",
+    help="v2: grid cells per axis = 2^bits over [-1.2, 1.2]^3; a fraction (e.g. 8.5, in steps of 1/8) stores a "
+    "grid between two.  [default: 8 at 4k points, one more per 4x points]",
 )
 @click.option(
     "--s-step",
@@ -191,7 +192,7 @@ def encode(
     size: int | None,
     max_error: float | None,
     format_version: str,
-    position_bits: int | None,
+    position_bits: float | None,
     s_step: float | None,
     c_step: float | None,
     smoothing: int | None,

@@ -33,6 +33,10 @@ POSITION_BITS_MAX = 16
 S_SYMBOL_LIMIT = 2**20  # s symbols lie in [-2**20, 2**20 - 1]; magnitude (k or -k-1) < 2**20
 C_SYMBOL_LIMIT = 2**15  # c symbols lie in [-2**15, 2**15]
 MIN_STEP = 2.0**-126  # steps are normal float32 numbers > 0
+# Fractional position grids (`fractional_grid`): scales in [MIN_GRID_SCALE, 1], effective bits in steps of
+# 1 / FRACTIONAL_BITS_DENOMINATOR.
+MIN_GRID_SCALE = 0.5
+FRACTIONAL_BITS_DENOMINATOR = 8
 
 
 def _is_tensor(x) -> bool:
@@ -57,23 +61,50 @@ def cell_size(bits: int) -> float:
 # positions
 
 
-def quantize_positions(points, bits: int):
-    """Cell index of each point: ``floor((x + GRID_BOUND) / cell)`` clamped to ``[0, 2**bits - 1]``.
+def check_grid_scale(scale: float) -> float:
+    """Return `scale` if it is a valid grid scale (see `quantize_positions`), else raise ValueError."""
+    scale = float(scale)
+    if not MIN_GRID_SCALE <= scale <= 1.0:
+        raise ValueError(f"the grid scale must be in [{MIN_GRID_SCALE}, 1], got {scale}")
+    return scale
 
-    points: (N, 3) float array or tensor. Returns int64 (N, 3) (a long tensor for tensor input).
+
+def fractional_grid(effective_bits: float) -> tuple[int, float]:
+    """(bits, scale) of a grid of `effective_bits` = bits + log2(scale) per axis, scale in (1/2, 1].
+
+    A scale below 1 is a continuous resolution between two integer grids: the points, multiplied by `scale`
+    before they are stored on the 2**bits grid, cover part of the grid's cube, and the file's transform divides
+    the scale out again (formats/README.md: the decoder sees an ordinary file). Effective bits are rounded to
+    1/FRACTIONAL_BITS_DENOMINATOR so that the same request always gives the same grid.
+    """
+    t = round(float(effective_bits) * FRACTIONAL_BITS_DENOMINATOR) / FRACTIONAL_BITS_DENOMINATOR
+    bits = int(np.ceil(t))
+    return check_bits(bits), check_grid_scale(2.0 ** (t - bits))
+
+
+def quantize_positions(points, bits: int, scale: float = 1.0):
+    """Cell index of each point: ``floor((scale * x + GRID_BOUND) / cell)`` clamped to ``[0, 2**bits - 1]``.
+
+    points: (N, 3) float array or tensor. scale: the grid scale (1: the plain grid; below 1 a coarser
+    effective grid, `fractional_grid`). Returns int64 (N, 3) (a long tensor for tensor input).
     """
     top = (1 << check_bits(bits)) - 1
     cell = cell_size(bits)
     if _is_tensor(points):
+        if scale != 1.0:
+            points = points * check_grid_scale(scale)
         return ((points + GRID_BOUND) / cell).floor().clamp(0, top).long()
     p = np.asarray(points, dtype=np.float64)
+    if scale != 1.0:
+        p = p * check_grid_scale(scale)
     if not np.isfinite(p).all():
         raise ValueError("points must be finite")
     return np.clip(np.floor((p + GRID_BOUND) / cell), 0, top).astype(np.int64)
 
 
-def dequantize_positions(cells, bits: int):
-    """Cell centres: ``((2k + 1 - 2**bits) * 1.2) / 2**bits`` in float64 (bit-exact, see formats/README.md).
+def dequantize_positions(cells, bits: int, scale: float = 1.0):
+    """Cell centres: ``((2k + 1 - 2**bits) * 1.2) / 2**bits`` in float64 (bit-exact, see formats/README.md),
+    divided by the grid scale when it is not 1 (the fit's frame; the decoder always uses scale 1).
 
     cells: (N, 3) integer array or tensor. Returns float64 (N, 3) (a float64 tensor for tensor input).
     """
@@ -82,11 +113,13 @@ def dequantize_positions(cells, bits: int):
         import torch
 
         k = cells.to(torch.float64)
-        return ((2.0 * k + (1.0 - n)) * GRID_BOUND) / n
-    k = np.asarray(cells, dtype=np.int64)
-    if k.size and (k.min() < 0 or k.max() >= n):
-        raise ValueError(f"cell indices must be in [0, {n - 1}]")
-    return ((2 * k + (1 - n)).astype(np.float64) * GRID_BOUND) / n
+        out = ((2.0 * k + (1.0 - n)) * GRID_BOUND) / n
+    else:
+        k = np.asarray(cells, dtype=np.int64)
+        if k.size and (k.min() < 0 or k.max() >= n):
+            raise ValueError(f"cell indices must be in [0, {n - 1}]")
+        out = ((2 * k + (1 - n)).astype(np.float64) * GRID_BOUND) / n
+    return out if scale == 1.0 else out / check_grid_scale(scale)
 
 
 def _spread3(v: np.ndarray) -> np.ndarray:

@@ -96,6 +96,34 @@ def test_position_error_is_at_most_half_a_cell(xs, bits):
     assert np.abs(back - p).max() <= Q.cell_size(bits) / 2 * (1 + 1e-9) + 1e-15
 
 
+def test_fractional_grid_spans_the_bits_between_two_integer_grids():
+    for eff in (6.0, 7.25, 8.5, 8.875, 9.0, 12.6, 16.0):
+        bits, scale = Q.fractional_grid(eff)
+        assert 0.5 < scale <= 1.0 and isinstance(bits, int)
+        assert bits + np.log2(scale) == pytest.approx(round(eff * 8) / 8, abs=1e-12)
+        assert Q.fractional_grid(eff) == (bits, scale)  # a pure function of its argument
+    assert Q.fractional_grid(9.0) == (9, 1.0) and Q.fractional_grid(8.5) == (9, 2.0**-0.5)
+    for bad in (5.0, 16.25):  # the stored grid itself has 6..16 bits (5.5 is 6 bits at scale 2^-0.5)
+        with pytest.raises(ValueError):
+            Q.fractional_grid(bad)
+    for bad in (0.49, 1.01, float("nan")):
+        with pytest.raises(ValueError):
+            Q.quantize_positions(np.zeros((1, 3)), 9, bad)
+
+
+@given(st.lists(st.floats(-1.2, 1.2, allow_nan=False), min_size=3, max_size=30), st.integers(6, 16), st.floats(0.5, 1))
+@settings(max_examples=50, deadline=None)
+def test_scaled_grid_error_is_at_most_half_a_scaled_cell(xs, bits, scale):
+    """Positions stored as scale x p: back in the fit's frame within half a cell / scale, and the cells are those
+    of the plain grid applied to scale x p (what a decoder with the transform divided by the scale sees)."""
+    p = np.array(xs[: len(xs) // 3 * 3]).reshape(-1, 3)
+    cells = Q.quantize_positions(p, bits, scale)
+    assert np.array_equal(cells, Q.quantize_positions(p * scale, bits))
+    back = Q.dequantize_positions(cells, bits, scale)
+    assert np.abs(back - p).max() <= Q.cell_size(bits) / scale / 2 * (1 + 1e-9) + 1e-15
+    np.testing.assert_allclose(back * scale, Q.dequantize_positions(cells, bits), rtol=1e-15, atol=1e-15)
+
+
 def test_s_quantizer_preserves_the_sign_and_never_gives_zero():
     s = np.array([-1.0, -1e-9, -0.0, 0.0, 1e-9, 0.00049, 0.0005, -0.0005, 3.0, 1e9, -1e9])
     k = Q.quantize_s(s, 5e-4)

@@ -219,6 +219,8 @@ def test_cli_flat_input_is_one_line(tmp_path):
         ["--subdivision", "3"],
         ["--smoothing", "4"],
         ["--subdivision", "1", "--format-version", "1", "--smoothing", "0"],
+        ["--position-bits", "5.5"],
+        ["--position-bits", "16.5"],
     ],
 )
 def test_cli_nonsense_options(tmp_path, args):
@@ -246,6 +248,17 @@ def test_cli_encode_then_decode(tmp_path):
     res = CliRunner().invoke(main, ["decode", str(tw), "-o", str(out)])
     assert res.exit_code == 0, res.output
     assert out.exists()
+    # a fractional grid: 8.5 bits are stored as 9 bits over a cube scaled by 2^-0.5, between the 8- and 9-bit files
+    sizes = {}
+    for bits in ("8", "8.5", "9"):
+        tw = tmp_path / f"torus_{bits}.tw"
+        args = ["encode", str(src), "-o", str(tw), "--points", "1k", "--iters", "30", "--sh-degree", "0", "-q"]
+        res = CliRunner().invoke(main, [*args, "--position-bits", bits])
+        assert res.exit_code == 0, res.output
+        sizes[bits] = tw.stat().st_size
+    assert sizes["8"] < sizes["8.5"] < sizes["9"]
+    res = CliRunner().invoke(main, ["info", str(tmp_path / "torus_8.5.tw")])
+    assert res.exit_code == 0 and "positions 9 bits/axis" in res.output, res.output
 
 
 @pytest.mark.slow
@@ -255,3 +268,31 @@ def test_million_faces_encode_without_running_out_of_memory():
     assert len(f) > 900_000
     result = encode(v, f, points=2048, sh_degree=0, quality="fast", iters=20)
     assert_closed_manifold(result.vertices, result.faces)
+
+
+@pytest.mark.parametrize("shape", [torus, csg_shape])
+def test_fractional_grid_sits_between_the_integer_grids(shape):
+    """A grid scale k < 1 stores k x the fit's positions on the 2^b grid (the transform divides k out): the same
+    fit (the main stage does not depend on the grid of a crease-free input; the CSG shape's feature points are
+    snapped to the scaled grid) packs between the grids one bit apart, decodes exactly to what the encoder
+    reported, closed and manifold, as close to the input as the integer grids, and every stored cell lies in
+    the scaled cube."""
+    from tetweave_codec.formats import quantize as Q
+    from tetweave_codec.formats.tw import unpack
+
+    v, f = shape()
+    quant = replace(default_quantization(1024), position_bits=9)
+    runs = {}
+    for bits, scale in ((8, 1.0), *[Q.fractional_grid(8.5)], (9, 1.0)):
+        q = replace(quant, position_bits=bits, grid_scale=scale)
+        runs[bits + np.log2(scale)] = encode(v, f, points=1024, sh_degree=1, quality="fast", iters=30, quantization=q)
+    coarse, frac, fine = (runs[b] for b in sorted(runs))
+    assert len(coarse.data) < len(frac.data) < len(fine.data)
+    assert_exact_decode(frac)
+    assert_closed_manifold(frac.vertices, frac.faces)
+    assert frac.stats["chamfer"] < 1.5 * max(coarse.stats["chamfer"], fine.stats["chamfer"])
+    stored = unpack(frac.data)
+    k = 2.0**-0.5
+    assert stored.position_bits == 9 and np.abs(stored.points).max() <= k * Q.GRID_BOUND + Q.cell_size(9)
+    # the file is an ordinary one: its transform carries 1 / k
+    assert stored.scale == pytest.approx(unpack(fine.data).scale / k, rel=1e-12)

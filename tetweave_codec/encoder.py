@@ -381,7 +381,7 @@ class Job:
         quantization = default_quantization(points) if quantization is None else quantization
         ctx, params = self.main_stage(points, quantization)
         with deterministic_torch():
-            fixed = finalize(params, ctx, quantization.position_bits)
+            fixed = finalize(params, ctx, quantization.position_bits, quantization.grid_scale)
         return ctx, fixed, quantization
 
     def grid_band(self):
@@ -579,6 +579,9 @@ def pack_result(result: FitResult, scale: float, offset: np.ndarray) -> bytes:
         return pack(TetWeaveFile(points=fin.points, s=fin.s, c=fin.c, **shared))
     shared["flags"] |= smoothing_flags(result.smoothing) | subdivision_flags(result.subdivision)
     q = fin.quantization
+    # The cells hold grid_scale x the fit's positions: the transform divides it out (s and c are unchanged: a
+    # marching-tets surface depends on the positions only through the edges' endpoints, on s only through ratios).
+    shared["scale"] = float(scale) / q.grid_scale
     steps = tuple(q.c_band_steps[: result.sh_degree + 1])
     shared["flags"] |= FLAG_S_PREDICTED
     if octree.contexts_pay(fin.cells, q.position_bits):  # the new coding only where it saves bytes

@@ -126,11 +126,20 @@ class Quantization:
     position_bits: b, 2^b grid cells per axis over the fixed cube of formats.quantize.
     s_step: step of the sign-preserving mid-rise quantizer of s (normalized-frame units).
     c_band_steps: step of the SH coefficients of band l = 0, 1, 2, 3.
+    grid_scale: k in [1/2, 1]: the points are stored as k x their normalized positions, on the 2^b grid (the
+    file's transform divides k out), an effective resolution of b + log2 k bits between two integer grids
+    (formats.quantize.fractional_grid).
     """
 
     position_bits: int = 9
     s_step: float = 3e-4
     c_band_steps: tuple[float, float, float, float] = (0.2, 0.2, 0.2, 0.2)
+    grid_scale: float = 1.0
+
+    @property
+    def effective_bits(self) -> float:
+        """b + log2 k: the resolution of the position grid in bits per axis."""
+        return self.position_bits + math.log2(self.grid_scale)
 
 
 def default_quantization(points: int) -> Quantization:

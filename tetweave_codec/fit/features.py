@@ -214,7 +214,9 @@ def plane_distance(points: np.ndarray, planes: np.ndarray) -> np.ndarray:
     return np.nanmean(d, axis=1)
 
 
-def snap_to_grid(points: np.ndarray, s: np.ndarray, planes: np.ndarray, bits: int) -> tuple[np.ndarray, np.ndarray]:
+def snap_to_grid(
+    points: np.ndarray, s: np.ndarray, planes: np.ndarray, bits: int, scale: float = 1.0
+) -> tuple[np.ndarray, np.ndarray]:
     """Move feature points to cell centres of the container's 2^bits grid where their planes still agree.
 
     Each point takes, among the cell centres of the 3x3x3 cells around it that keep the sign of s and
@@ -223,17 +225,18 @@ def snap_to_grid(points: np.ndarray, s: np.ndarray, planes: np.ndarray, bits: in
     the fit starts from are exactly those of the decoded positions (axis-aligned faces: exactly equal).
 
     Args:
-        points (M,3), s (M,), planes (M,K,4) from ``feature_points``; bits: the container's position bits.
+        points (M,3), s (M,), planes (M,K,4) from ``feature_points``; bits: the container's position bits;
+        scale: its grid scale (formats.quantize.quantize_positions).
     Returns:
         snapped points (M,3) float64 and their s (M,).
     """
     if len(points) == 0:
         return points, s
-    cell = Q.cell_size(bits)
-    base = Q.quantize_positions(points, bits)
+    cell = Q.cell_size(bits) / scale
+    base = Q.quantize_positions(points, bits, scale)
     offsets = np.array([[i, j, k] for i in (-1, 0, 1) for j in (-1, 0, 1) for k in (-1, 0, 1)])
     top = (1 << bits) - 1
-    cand = Q.dequantize_positions(np.clip(base[:, None, :] + offsets[None], 0, top).reshape(-1, 3), bits)
+    cand = Q.dequantize_positions(np.clip(base[:, None, :] + offsets[None], 0, top).reshape(-1, 3), bits, scale)
     cand = cand.reshape(len(points), len(offsets), 3)
     d = (planes[:, None, :, :3] * cand[:, :, None, :]).sum(-1) - planes[:, None, :, 3]  # (M,27,K)
     spread = np.nanmax(d, axis=2) - np.nanmin(d, axis=2)

@@ -64,9 +64,11 @@ class FinishResult:
 class Finalized:
     """The point set fixed to what the container stores, in storage order, before the late stage.
 
-    points (N,3) float64: exactly the positions the decoder triangulates. s (N,), c (N,q): latent values.
-    stored (N,3) float16 (v1) or cells (N,3) int64 in canonical order (v2). keep_signs: the signs of s are the
-    input's inside / outside (the grid layout's band, fit.grid), which the late stage keeps.
+    points (N,3) float64: the decoded positions in the fit's frame (the positions the decoder triangulates,
+    divided by grid_scale). s (N,), c (N,q): latent values. stored (N,3) float16 (v1) or cells (N,3) int64 in
+    canonical order (v2) on the 2^position_bits grid of the frame x grid_scale (`config.Quantization`).
+    keep_signs: the signs of s are the input's inside / outside (the grid layout's band, fit.grid), which the late
+    stage keeps.
     """
 
     points: np.ndarray
@@ -76,17 +78,26 @@ class Finalized:
     cells: np.ndarray | None = None
     position_bits: int | None = None
     keep_signs: bool = False
+    grid_scale: float = 1.0
+
+    def stored_points(self) -> np.ndarray:
+        """(N,3) float64: exactly the positions the decoder triangulates (the grid's cell centres for v2)."""
+        if self.cells is None or self.grid_scale == 1.0:
+            return self.points
+        return Q.dequantize_positions(self.cells, self.position_bits)
 
 
 def finish(params: Params, ctx: FitContext) -> FinishResult:
     """Finalize the point set for the container and run the late stage. Raises TetweaveError with no surface."""
     quant = ctx.config.quantization
-    return complete(finalize(params, ctx, None if quant is None else quant.position_bits), ctx, quant)
+    if quant is None:
+        return complete(finalize(params, ctx, None), ctx, quant)
+    return complete(finalize(params, ctx, quant.position_bits, quant.grid_scale), ctx, quant)
 
 
-def finalize(params: Params, ctx: FitContext, position_bits: int | None) -> Finalized:
+def finalize(params: Params, ctx: FitContext, position_bits: int | None, grid_scale: float = 1.0) -> Finalized:
     """Keep the active points and fix them to the container's positions: float16 (position_bits None, v1) or the
-    2^b grid (v2; colliding points merged, first occurrence wins, canonical order)."""
+    2^b grid of the frame x grid_scale (v2; colliding points merged, first occurrence wins, canonical order)."""
     from tetweave_codec.errors import TetweaveError
 
     t0 = time.perf_counter()
@@ -103,13 +114,13 @@ def finalize(params: Params, ctx: FitContext, position_bits: int | None) -> Fina
         stored = stored[first]
         fixed = stored.astype(np.float64)
     else:
-        cells, first = Q.merge_collisions(Q.quantize_positions(points, position_bits))
+        cells, first = Q.merge_collisions(Q.quantize_positions(points, position_bits, grid_scale))
         cells, first = _drop_flat_tets(cells, first, position_bits, ctx.backend)
-        fixed = Q.dequantize_positions(cells, position_bits)
+        fixed = Q.dequantize_positions(cells, position_bits, grid_scale)
     if len(fixed) < 4:
         raise TetweaveError("the fit produced no surface (is the input a closed or nearly closed shape?)")
     ctx.seconds["finalize"] = ctx.seconds.get("finalize", 0.0) + time.perf_counter() - t0
-    return Finalized(fixed, s[first], c[first], stored, cells, position_bits)
+    return Finalized(fixed, s[first], c[first], stored, cells, position_bits, grid_scale=grid_scale)
 
 
 def finalize_cells(cells: np.ndarray, s: np.ndarray, c: np.ndarray, position_bits: int, backend: str) -> Finalized:
@@ -170,10 +181,12 @@ def _drop_flat_tets(
 def complete(fin: Finalized, ctx: FitContext, quant: Quantization | None) -> FinishResult:
     """The late stage on finalized points, then the stored values (float16 for v1, symbols for v2)."""
     t0 = time.perf_counter()
-    if quant is not None and quant.position_bits != fin.position_bits:
-        raise ValueError("the quantization's position bits differ from the finalized grid's")
+    if quant is not None and (quant.position_bits, quant.grid_scale) != (fin.position_bits, fin.grid_scale):
+        raise ValueError("the quantization's position grid differs from the finalized grid")
     quantizer = None if quant is None else _Quantizer(quant, ctx.config.sh_degree)
-    s, c = late_stage(fin.points, fin.s, fin.c, ctx, quantizer, keep_signs=fin.keep_signs)
+    s, c = late_stage(
+        fin.points, fin.s, fin.c, ctx, quantizer, keep_signs=fin.keep_signs, triangulated=fin.stored_points()
+    )
     ctx.seconds["late"] = ctx.seconds.get("late", 0.0) + time.perf_counter() - t0
     if quant is None:
         s16, c16 = round_float16(s, c)
@@ -226,17 +239,21 @@ def late_stage(
     ctx: FitContext,
     quantizer: _Quantizer | None = None,
     keep_signs: bool = False,
+    triangulated: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Optimize s and c on fixed points (N,3) float64 and their one triangulation; returns latent s, c (float32).
 
-    The triangulation is computed from the float64 points in the given order, exactly as the decoder computes it.
+    The triangulation is computed from the float64 points in the given order, exactly as the decoder computes it:
+    from `triangulated` (N,3) when given, the same points in the stored frame (a scaled grid, whose positions
+    divided by the grid scale are not exactly the decoder's; Delaunay is scale-invariant, its float predicates on
+    cospherical grid points are not).
     keep_signs: no s changes sign (each is clamped to its side after every step). The grid layout's signs are the
     input's inside and outside; a flip there made a sheet between band points across empty space (spot, b 6:
     119 flips, 210 vertices 0.01-0.085 from the input, Chamfer 2.7e-4 -> 8.3e-4).
     """
     sch = ctx.config.schedule
     params = Params(points.astype(np.float32), s, c, ctx.device, ctx.config.lr, optimize_points=False)
-    grid = triangulate(points, ctx.backend, ctx.device)
+    grid = triangulate(points if triangulated is None else triangulated, ctx.backend, ctx.device)
     base_lrs = [g["lr"] for g in params.opt_sc.param_groups]
     inside = torch.as_tensor(np.asarray(s) < 0, device=params.s.device) if keep_signs else None
     for it in range(sch.late_iters):

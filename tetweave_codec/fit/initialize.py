@@ -266,6 +266,7 @@ def initial_state(
     seed: int,
     features: bool = True,
     position_bits: int | None = None,
+    grid_scale: float = 1.0,
     **kwargs: float,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Start of the fit from the known input: ``initial_points`` with s = the input's signed distance, c = 0.
@@ -292,13 +293,15 @@ def initial_state(
         seed: seed of the numpy Generator that draws the points.
         features: place points around sharp creases when the input has some.
         position_bits: the container's position grid, if known: feature points are snapped to its cell centres
-            (``fit.features.snap_to_grid``).
+            (``fit.features.snap_to_grid``), on the grid of the frame x grid_scale (``config.Quantization``).
         **kwargs: forwarded to ``initial_points`` (shell, uniform_fraction, shell_gap).
     Returns:
         points (m,3) float32, s (m,) float32, c (m,q) float32 (zeros), m <= n; the first N_CORNERS points are
         the cube's corners, the feature points (if any) follow them.
     """
-    points, s, c, _ = initial_state_pinned(vertices, faces, n, sh_degree, seed, features, position_bits, **kwargs)
+    points, s, c, _ = initial_state_pinned(
+        vertices, faces, n, sh_degree, seed, features, position_bits, grid_scale, **kwargs
+    )
     return points, s, c
 
 
@@ -310,6 +313,7 @@ def initial_state_pinned(
     seed: int,
     features: bool = True,
     position_bits: int | None = None,
+    grid_scale: float = 1.0,
     **kwargs: float,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """``initial_state`` plus a (m,) bool mask of the feature points, which the fit keeps in place."""
@@ -322,7 +326,7 @@ def initial_state_pinned(
         s = signed_distance(points, vertices, faces, tree).astype(np.float32)
         n_feat = 0
     else:
-        points, s, n_feat = _feature_state(vertices, faces, n, rng, feat, position_bits, tree, **kwargs)
+        points, s, n_feat = _feature_state(vertices, faces, n, rng, feat, position_bits, grid_scale, tree, **kwargs)
     s[s == 0] = MIN_ABS_S  # the outside sign
     c = np.zeros((len(points), num_coeffs(sh_degree)), dtype=np.float32)
     pinned = np.zeros(len(points), dtype=bool)
@@ -337,6 +341,7 @@ def _feature_state(
     rng: np.random.Generator,
     feat: Features,
     position_bits: int | None,
+    grid_scale: float,
     tree: SurfaceTree,
     **kwargs: float,
 ) -> tuple[np.ndarray, np.ndarray, int]:
@@ -350,7 +355,7 @@ def _feature_state(
         spacing *= math.sqrt(len(fpts) / (MAX_FEATURE_FRACTION * n))
         fpts, fs, planes = feature_points(feat, spacing)
     if position_bits is not None:
-        fpts, fs = snap_to_grid(fpts, fs, planes, position_bits)
+        fpts, fs = snap_to_grid(fpts, fs, planes, position_bits, grid_scale)
     # A point can see its planes from the wrong side (saddle corners, thin parts, a face pair reaching into
     # another part of the shape): keep only those whose plane distance has the input's sign.
     agree = np.sign(fs) == np.sign(signed_distance(fpts, vertices, faces, tree))

@@ -344,9 +344,16 @@ def start(vertices: np.ndarray, faces: np.ndarray, ctx: FitContext) -> Params:
     n_start = max(64, min(config.points, int(round(config.points * config.schedule.start_fraction))))
     pinned = None
     if config.init == "sdf":
-        bits = None if config.quantization is None else config.quantization.position_bits
+        quant = config.quantization
         points, s, c, pinned = initial_state_pinned(
-            vertices, faces, n_start, config.sh_degree, config.seed, features=config.features, position_bits=bits
+            vertices,
+            faces,
+            n_start,
+            config.sh_degree,
+            config.seed,
+            features=config.features,
+            position_bits=None if quant is None else quant.position_bits,
+            grid_scale=1.0 if quant is None else quant.grid_scale,
         )
     elif config.init == "random":
         points, s, c = random_state(n_start, config.sh_degree, config.seed)

@@ -50,11 +50,11 @@ class EncodeOptions:
     """`tetweave encode`'s options for one file, as the encoder API takes them (see `encoder_kwargs`).
 
     sh_degree: "auto", "none" or "0".."3". size: target bytes; max_error: target Chamfer distance (rate control).
-    format_version: 1 or 2. position_bits / s_step / c_step: v2 quantization overrides (None = the defaults for
-    `points`; not with the grid layout, which has its own). smoothing, subdivision: the decoder's Taubin steps and
-    Loop levels (None = the encoder's default). layout: "fit", "grid" or "best" (encoder.LAYOUTS). holes: "close" or
-    "keep" (encoder.HOLES: an open input's holes spanned, or kept open). threads: torch CPU
-    threads (0 = torch's default). measure: compute the Chamfer distance.
+    format_version: 1 or 2. position_bits (fractional ones: formats.quantize.fractional_grid) / s_step / c_step:
+    v2 quantization overrides (None = the defaults for `points`; not with the grid layout, which has its own).
+    smoothing, subdivision: the decoder's Taubin steps and Loop levels (None = the encoder's default). layout:
+    "fit", "grid" or "best" (encoder.LAYOUTS). holes: "close" or "keep" (encoder.HOLES: an open input's holes
+    spanned, or kept open). threads: torch CPU threads (0 = torch's default). measure: compute the Chamfer distance.
     """
 
     points: int = 16384
@@ -66,7 +66,7 @@ class EncodeOptions:
     size: int | None = None
     max_error: float | None = None
     format_version: int = 2
-    position_bits: int | None = None
+    position_bits: float | None = None
     s_step: float | None = None
     c_step: float | None = None
     smoothing: int | None = None
@@ -99,7 +99,10 @@ class EncodeOptions:
             )
         quant = default_quantization(self.points)
         if self.position_bits is not None:
-            quant = replace(quant, position_bits=self.position_bits)
+            from tetweave_codec.formats.quantize import fractional_grid
+
+            bits, grid_scale = fractional_grid(self.position_bits)
+            quant = replace(quant, position_bits=bits, grid_scale=grid_scale)
         if self.s_step is not None:
             quant = replace(quant, s_step=self.s_step)
         if self.c_step is not None:
