@@ -285,3 +285,58 @@ def test_choose_keeps_the_steps_balanced_before_the_default_grid(monkeypatch):
     assert pick([(9, 2.0, aim - 50), (8, 2.8, aim - 10), (9, 1.4, aim + 5)]) == (9, 2.0)
     assert pick([(9, 2.8, aim - 50), (8, 2.8, aim - 10)]) == (8, 2.8)
     assert pick([(9, 2.8, aim + 50), (8, 2.8, aim + 10)]) == (8, 2.8)  # none fits: the smallest
+
+
+def test_a_fractional_grid_replaces_coarser_steps_on_the_default_grid(monkeypatch):
+    """`_finer_grid_or`: the finest fractional grid that fits at the default steps instead of the default grid at
+    coarser steps; the default grid's candidate when none fits. And `encode_to_size` asks for it only then: a
+    --size file of a default grid at x1 (or finer steps) is on an integer grid."""
+    from tetweave_codec.formats import quantize as Q
+    from tetweave_codec.rate_control import FRACTIONAL_GRID_OFFSETS, SIZE_AIM, Candidate, _finer_grid_or
+
+    assert FRACTIONAL_GRID_OFFSETS == (0.25, 0.5, 0.75)
+    size = 20480
+    aim = SIZE_AIM * size
+
+    def cand(eff, scale, est):
+        bits, k = Q.fractional_grid(eff)
+        return Candidate(int(est), bits, scale, None, k)
+
+    chosen = cand(9, 1.4, aim - 400)
+    rows = [chosen, cand(9, 1.0, aim + 900), cand(8, 1.0, aim - 2500)]
+    frac = [cand(8.75, 1.0, aim + 100), cand(8.5, 1.0, aim - 800), cand(8.25, 1.0, aim - 1700)]
+    picked = _finer_grid_or(chosen, rows + frac, size)
+    assert (picked.effective_bits, picked.scale) == (pytest.approx(8.5), 1.0) and picked.position_bits == 9
+    assert _finer_grid_or(chosen, rows + frac[:1], size) is chosen  # none fits: the default grid's candidate
+    assert _finer_grid_or(chosen, rows, size) is chosen  # b 8 is not fractional
+
+
+@pytest.mark.parametrize("steps", [1.4, 1.0])
+def test_size_file_on_a_fractional_grid_lands_in_the_band(monkeypatch, steps):
+    """End to end: when `_choose` takes the default grid at coarser steps, the file is on a fractional grid (when
+    one fits at the default steps), in the band and decoding exactly to the reported mesh; at the default steps it
+    stays on the integer grid."""
+    from tetweave_codec.formats.tw import unpack
+
+    size = 4000
+    seen = {}
+
+    def default_grid_at(candidates, base, size, *_):
+        on = [c for c in candidates if c.position_bits == base.position_bits and c.grid_scale == 1.0]
+        seen["bits"] = base.position_bits
+        return min(on, key=lambda c: abs(c.scale - steps))
+
+    monkeypatch.setattr(rate_control, "_choose", default_grid_at)
+    v, f = sphere()
+    result = encode(v, f, size=size, **FAST)
+    assert rate_control.SIZE_FLOOR * size <= len(result.data) <= size
+    dv, df = decode(result.data)
+    np.testing.assert_array_equal(dv, result.vertices)
+    np.testing.assert_array_equal(df, result.faces)
+    grid = result.stats["rate_control"].split(", ")[1]  # "b 7.75" or "b 8"
+    effective = float(grid.split()[1])
+    assert unpack(result.data).position_bits == seen["bits"]
+    if steps > 1.0:
+        assert seen["bits"] - 1 < effective < seen["bits"], grid
+    else:
+        assert effective == seen["bits"], grid
