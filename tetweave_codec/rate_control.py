@@ -92,14 +92,6 @@ STEP_SCALES = (2.8, 2.0, 1.4, 1.0, 0.7, 0.5)
 # The largest step multiplier `_choose` takes before a grid one bit coarser: see `_choose`. None: the default grid
 # at any multiplier up to 2.0 first (the rule before session 11).
 BALANCED_STEP_SCALE: float | None = 1.4
-# Fractional grids (formats.quantize.fractional_grid) tried at the default steps, this many bits coarser than the
-# default grid, when `_choose` took the default grid at coarser steps: the finest of them that fits replaces it
-# (`_finer_grid_or`). Why: spot 20 KB took b 9 at x1.4, b 8.75 at x1 gave bytes x Chamfer 0.955-0.967 on three
-# seeds; stanford-bunny 10 KB 0.996-1.015, igea 5 KB 0.989 on one seed of three, other cases unchanged (median
-# 0.989 over the 7 changed; benchmarks/results/rate_control.md, "Session 12"). Taking the finest fractional grid
-# whenever the default grid does not fit at x1 also replaced b 8 at x1 and lost there (igea 20 KB 1.00-1.03).
-# Empty: integer grids only.
-FRACTIONAL_GRID_OFFSETS: tuple[float, ...] = (0.25, 0.5, 0.75)
 # Precision of --size files of shapes a coarse decimation already holds (piecewise-flat and CAD parts): the s and
 # c steps are multiplied by a factor k <= 1 of the prior's detail measure D (input_detail; fandisk 0.17, spot
 # 1.30, igea 2.10, stanford-bunny 2.31, a cube 0): log2 k = PRECISION_SLOPE * (D - PRECISION_KNEE), at least
@@ -130,11 +122,6 @@ class Candidate:
     position_bits: int
     scale: float
     quantization: Quantization
-    grid_scale: float = 1.0
-
-    @property
-    def effective_bits(self) -> float:
-        return self.position_bits + math.log2(self.grid_scale)
 
 
 @dataclass
@@ -186,14 +173,11 @@ def size_quantization(points: int, size: int, detail: float) -> Quantization:
     return _scaled(base, step_factor(detail, points), bits)
 
 
-def _scaled(
-    quant: Quantization, scale: float, bits: int | None = None, grid_scale: float | None = None
-) -> Quantization:
-    """quant with its s and c steps multiplied by `scale` (and another position grid)."""
+def _scaled(quant: Quantization, scale: float, bits: int | None = None) -> Quantization:
+    """quant with its s and c steps multiplied by `scale` (and other position bits)."""
     return replace(
         quant,
         position_bits=quant.position_bits if bits is None else bits,
-        grid_scale=quant.grid_scale if grid_scale is None else grid_scale,
         s_step=quant.s_step * scale,
         c_band_steps=tuple(st * scale for st in quant.c_band_steps),
     )
@@ -222,27 +206,21 @@ def encode_to_size(job, size: int, *, measure: bool = True):
     with deterministic_torch():
         candidates = []
         finals = {}
-
-        def add(bits: int, grid_scale: float, scales) -> None:
-            fin = finals[bits, grid_scale] = finalize(params, ctx, bits, grid_scale)
-            for scale in scales:
-                quant = _scaled(base, scale, bits, grid_scale)
-                est = len(job.pack(requantize(fin.points, fin.cells, fin.s, fin.c, quant, job.sh_degree), ctx))
-                candidates.append(Candidate(est, bits, scale, quant, grid_scale))
-
         for bits in (base.position_bits - 1, base.position_bits, base.position_bits + 1):
-            if Q.POSITION_BITS_MIN <= bits <= Q.POSITION_BITS_MAX:
-                add(bits, 1.0, STEP_SCALES)
+            if not 6 <= bits <= 16:
+                continue
+            fin = finalize(params, ctx, bits)
+            finals[bits] = fin
+            for scale in STEP_SCALES:
+                quant = _scaled(base, scale, bits)
+                est = len(job.pack(requantize(fin.points, fin.cells, fin.s, fin.c, quant, job.sh_degree), ctx))
+                candidates.append(Candidate(est, bits, scale, quant))
         chosen = _choose(candidates, base, size, finals, ctx, job)
-        if FRACTIONAL_GRID_OFFSETS and chosen.position_bits == base.position_bits and chosen.scale > 1.0:
-            for offset in FRACTIONAL_GRID_OFFSETS:
-                add(*Q.fractional_grid(base.position_bits - offset), (1.0,))
-            chosen = _finer_grid_or(chosen, candidates, size)
-        scale = chosen.scale
-        result = complete(finals[chosen.position_bits, chosen.grid_scale], ctx, chosen.quantization)
+        bits, scale = chosen.position_bits, chosen.scale
+        result = complete(finals[bits], ctx, chosen.quantization)
     data = job.pack(result, ctx)
     result, data = _into_band(job, ctx, result, data, size)
-    extra = {"target_bytes": size, "rate_control": f"{points} points, b {chosen.effective_bits:.4g}, steps x{scale:g}"}
+    extra = {"target_bytes": size, "rate_control": f"{points} points, b {bits}, steps x{scale:g}"}
     return job.result(result, ctx, points, measure=measure, data=data, extra=extra)
 
 
@@ -265,13 +243,6 @@ def _choose(candidates: list[Candidate], base: Quantization, size: int, finals, 
     if fitting:
         return max(fitting, key=lambda c: c.estimate)
     return min(candidates, key=lambda c: c.estimate)
-
-
-def _finer_grid_or(chosen: Candidate, candidates: list[Candidate], size: int) -> Candidate:
-    """Instead of the default grid at coarser steps (`chosen`), the finest fractional grid below it that fits at
-    the default steps, if one does."""
-    fractional = [c for c in candidates if c.grid_scale < 1.0 and c.scale == 1.0 and c.estimate <= SIZE_AIM * size]
-    return max(fractional, key=lambda c: c.estimate) if fractional else chosen
 
 
 def _grid_to_size(job, size: int, measure: bool):
