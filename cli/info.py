@@ -37,7 +37,8 @@ def _v2_lines(file: Path, f, total: int, degree: str) -> list[tuple[str, str]]:
         ("flags", f"0x{f.flags:x} (Delaunay backend: {f.backend}{predicted})"),
         (
             "quantization",
-            f"positions {f.position_bits} bits/axis (cell {quantize.cell_size(f.position_bits):.6g}), "
+            f"positions {f.position_bits} bits/axis (cell {quantize.cell_size(f.position_bits):.6g}, "
+            f"{quantize.cell_size(f.position_bits) * f.scale:.6g} in the input's units), "
             f"s step {f.s_step:.6g}, c steps {steps}",
         ),
         ("bytes", f"{total:,} total ({bpp(total)})"),

@@ -257,8 +257,15 @@ def test_cli_encode_then_decode(tmp_path):
         assert res.exit_code == 0, res.output
         sizes[bits] = tw.stat().st_size
     assert sizes["8"] < sizes["8.5"] < sizes["9"]
-    res = CliRunner().invoke(main, ["info", str(tmp_path / "torus_8.5.tw")])
-    assert res.exit_code == 0 and "positions 9 bits/axis" in res.output, res.output
+    from tetweave_codec.formats import quantize as Q
+
+    cells = {}
+    for bits in ("8.5", "9"):
+        res = CliRunner().invoke(main, ["info", str(tmp_path / f"torus_{bits}.tw")])
+        assert res.exit_code == 0 and "positions 9 bits/axis" in res.output, res.output
+        cells[bits] = float(res.output.split(f"(cell {Q.cell_size(9):.6g}, ")[1].split()[0])
+    # the same stored grid, 2^0.5 times coarser in the input's units
+    assert cells["8.5"] / cells["9"] == pytest.approx(2**0.5, rel=1e-4)
 
 
 @pytest.mark.slow
