@@ -136,11 +136,6 @@ class Quantization:
     c_band_steps: tuple[float, float, float, float] = (0.2, 0.2, 0.2, 0.2)
     grid_scale: float = 1.0
 
-    @property
-    def effective_bits(self) -> float:
-        """b + log2 k: the resolution of the position grid in bits per axis."""
-        return self.position_bits + math.log2(self.grid_scale)
-
 
 def default_quantization(points: int) -> Quantization:
     """Container v2's defaults for a fit of `points` grid points: a plain function of the options.
