@@ -23,6 +23,11 @@ def _mesh(solid) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(m.vert_properties[:, :3], np.float64), np.asarray(m.tri_verts, np.int64)
 
 
+def _normalized(solid) -> tuple[np.ndarray, np.ndarray]:
+    v, f = _mesh(solid)
+    return normalize(v)[0], f
+
+
 @pytest.fixture(scope="module")
 def cube():
     """The unit cube in the fit's normalized frame: [-0.9, 0.9]^3."""
@@ -109,6 +114,26 @@ def test_crease_distance(cube):
     feat = fe.detect_features(*cube)
     q = np.array([[0.0, 0.0, 0.0], [0.9, 0.9, 0.0], [0.5, 0.9, 0.9]])
     np.testing.assert_allclose(fe.crease_distance(feat, q), [0.9 * np.sqrt(2), 0.0, 0.0], atol=1e-9)
+
+
+def test_feature_start_with_many_corners_and_few_points():
+    """More corner pairs than half the points: the crease spacing stops growing (it once looped forever) and
+    the start is the plain one; with more points the feature points keep to their share."""
+    m = manifold3d.Manifold
+    v, f = _normalized(
+        m.cube([1.2, 0.4, 0.4], center=True)
+        + m.cube([0.4, 1.2, 0.4], center=True)
+        + m.cube([0.4, 0.4, 1.2], center=True).translate([0.3, 0.2, 0.1])
+    )
+    feat = fe.detect_features(v, f)
+    assert feat.found and 2 * len(feat.corners) > 75
+    p, s, c, pinned = ini.initial_state_pinned(v, f, 150, -1, 0, features=True, position_bits=7)
+    plain = ini.initial_state(v, f, 150, -1, 0, features=False)
+    assert not pinned.any()
+    np.testing.assert_array_equal(p, plain[0])
+    np.testing.assert_array_equal(s, plain[1])
+    p, s, c, pinned = ini.initial_state_pinned(v, f, 400, -1, 0, features=True, position_bits=7)
+    assert 0 < pinned.sum() <= 200 and np.all(np.isfinite(s))
 
 
 def test_encode_cube_closed_deterministic_and_sharp(monkeypatch):

@@ -52,6 +52,9 @@ MIN_ABS_S = 2.0**-14
 CREASE_SPACING = 1.0
 MAX_FEATURE_FRACTION = 0.5
 CREASE_CLEARANCE = 0.8
+# The crease spacing grows at most this many times to fit the feature points into their share of the budget
+# (2-5 times where it fits at all).
+MAX_SPACING_STEPS = 30
 # Stratified surface sampling: candidates per sample, and bisection steps on the cell size (2^-12 relative).
 OVERSAMPLE = 4
 STRATIFY_BISECTIONS = 12
@@ -321,12 +324,15 @@ def initial_state_pinned(
     rng = np.random.default_rng(seed)
     feat = detect_features(vertices, faces) if features else None
     tree = SurfaceTree(vertices, faces)
-    if feat is None or not feat.found:
+    state = None
+    if feat is not None and feat.found:
+        state = _feature_state(vertices, faces, n, rng, feat, position_bits, grid_scale, tree, **kwargs)
+    if state is None:
         points = initial_points(vertices, faces, n, rng, tree=tree, **kwargs).astype(np.float32)
         s = signed_distance(points, vertices, faces, tree).astype(np.float32)
         n_feat = 0
     else:
-        points, s, n_feat = _feature_state(vertices, faces, n, rng, feat, position_bits, grid_scale, tree, **kwargs)
+        points, s, n_feat = state
     s[s == 0] = MIN_ABS_S  # the outside sign
     c = np.zeros((len(points), num_coeffs(sh_degree)), dtype=np.float32)
     pinned = np.zeros(len(points), dtype=bool)
@@ -344,16 +350,25 @@ def _feature_state(
     grid_scale: float,
     tree: SurfaceTree,
     **kwargs: float,
-) -> tuple[np.ndarray, np.ndarray, int]:
+) -> tuple[np.ndarray, np.ndarray, int] | None:
     """Feature points (with plane-distance s) + the usual layout minus shell points near creases.
 
-    Returns points (m,3) float32, s (m,) float32 and the number of feature points (they follow the corners)."""
+    Returns points (m,3) float32, s (m,) float32 and the number of feature points (they follow the corners), or
+    None when the feature points cannot fit into MAX_FEATURE_FRACTION of n (the caller starts without them)."""
     area = float(face_areas(vertices, faces).sum())
     spacing = CREASE_SPACING * math.sqrt(area / max(n, 1))
     fpts, fs, planes = feature_points(feat, spacing)
-    while len(fpts) > MAX_FEATURE_FRACTION * n:
-        spacing *= math.sqrt(len(fpts) / (MAX_FEATURE_FRACTION * n))
+    budget = int(MAX_FEATURE_FRACTION * n)
+    for _ in range(MAX_SPACING_STEPS):
+        if len(fpts) <= budget:
+            break
+        spacing *= math.sqrt(len(fpts) / max(budget, 1))
         fpts, fs, planes = feature_points(feat, spacing)
+    if len(fpts) > budget:
+        # Many corners and few points: the corners' pairs alone exceed the budget (a wider spacing removes none
+        # of them; this loop once ran forever there). Part of the corners would be worse than none: a start
+        # with the pairs of only some corners lost the whole surface of three boxes at 128 points.
+        return None
     if position_bits is not None:
         fpts, fs = snap_to_grid(fpts, fs, planes, position_bits, grid_scale)
     # A point can see its planes from the wrong side (saddle corners, thin parts, a face pair reaching into
