@@ -5,6 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import trimesh
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
 
 from tetweave_codec.decoder import mesh_from_points
 from tetweave_codec.fit import features as fe
@@ -114,6 +117,23 @@ def test_crease_distance(cube):
     feat = fe.detect_features(*cube)
     q = np.array([[0.0, 0.0, 0.0], [0.9, 0.9, 0.0], [0.5, 0.9, 0.9]])
     np.testing.assert_allclose(fe.crease_distance(feat, q), [0.9 * np.sqrt(2), 0.0, 0.0], atol=1e-9)
+
+
+@settings(max_examples=80, deadline=None)
+@given(
+    arrays(np.int64, st.tuples(st.integers(0, 60), st.integers(1, 3)), elements=st.integers(-3, 3)),
+    st.booleans(),
+)
+def test_unique_rows_is_numpys_unique(rows, as_float):
+    """unique_rows gives np.unique(axis=0)'s rows, inverse and counts (ints, and floats with signed zeros)."""
+    if as_float:
+        rows = rows.astype(np.float64) * 0.5
+        rows[rows == 0] = np.where(np.arange((rows == 0).sum()) % 2 == 0, 0.0, -0.0)
+    want = np.unique(rows, axis=0, return_inverse=True, return_counts=True)
+    got = fe.unique_rows(rows)
+    np.testing.assert_array_equal(got[0], want[0])
+    np.testing.assert_array_equal(got[1], want[1].reshape(-1))
+    np.testing.assert_array_equal(got[2], want[2])
 
 
 def test_feature_start_with_many_corners_and_few_points():

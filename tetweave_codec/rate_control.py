@@ -452,10 +452,11 @@ def hole_cap_error(vertices: np.ndarray, faces: np.ndarray) -> float:
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
+    from tetweave_codec.fit.features import unique_rows
     from tetweave_codec.geometry.triangles import face_areas, triangle_cross
 
     edges = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
-    unique, counts = np.unique(edges, axis=0, return_counts=True)
+    unique, _, counts = unique_rows(edges)
     rim = unique[counts == 1]
     if not len(rim):
         return 0.0

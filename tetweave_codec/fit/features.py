@@ -75,11 +75,30 @@ class Features:
         return self.length >= MIN_CREASE_LENGTH
 
 
+def unique_rows(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The distinct rows of rows (N,k) in lexicographic order (M,k), the index (N,) of each row among them and
+    the count (M,) of each: ``np.unique(rows, axis=0, return_inverse=True, return_counts=True)``, ~10x faster
+    (a stable lexsort of the columns instead of numpy's sort of a structured view: 1.1 of 1.4 s in
+    ``detect_features`` on a 269K-face scan). Rows compare by value (-0.0 equals 0.0); no NaN."""
+    a = np.asarray(rows)
+    if len(a) == 0:
+        return a.reshape(0, *a.shape[1:]), np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    order = np.lexsort(a.T[::-1])
+    ordered = a[order]
+    first = np.ones(len(a), dtype=bool)
+    first[1:] = np.any(ordered[1:] != ordered[:-1], axis=1)
+    group = np.cumsum(first) - 1
+    inverse = np.empty(len(a), dtype=np.int64)
+    inverse[order] = group
+    counts = np.diff(np.append(np.flatnonzero(first), len(a)))
+    return ordered[first], inverse, counts
+
+
 def weld(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Merge vertices with equal coordinates: welded vertices (V',3) and faces (F,3) into them."""
     v = np.asarray(vertices, dtype=np.float64)
-    uniq, inverse = np.unique(v, axis=0, return_inverse=True)
-    return uniq, inverse.reshape(-1)[np.asarray(faces, dtype=np.int64)]
+    uniq, inverse, _ = unique_rows(v)
+    return uniq, inverse[np.asarray(faces, dtype=np.int64)]
 
 
 def detect_features(
@@ -105,8 +124,7 @@ def detect_features(
     half = np.stack([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]], axis=1).reshape(-1, 2)  # (3F,2) directed
     face_of = np.repeat(np.arange(len(f)), 3)
     key = np.sort(half, axis=1)
-    _, inverse, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
-    inverse = inverse.reshape(-1)
+    _, inverse, counts = unique_rows(key)
     two = counts[inverse] == 2
     order = np.argsort(inverse[two], kind="stable")
     idx = np.nonzero(two)[0][order].reshape(-1, 2)  # (E2,2) the two half-edges of each manifold edge

@@ -46,13 +46,13 @@ def input_rim(vertices: np.ndarray, faces: np.ndarray) -> InputRim | None:
     """The input's rim (see InputRim), or None when every edge has two or more faces (nothing to keep open).
     Vertices with equal coordinates are merged first: an OBJ's texture seams duplicate them, which would make
     every seam a rim (beast from common-3d-test-models: 3,280 seam edges, no hole)."""
-    from tetweave_codec.fit.features import weld
+    from tetweave_codec.fit.features import unique_rows, weld
 
     vertices, faces = weld(vertices, faces)
     f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
     half = np.stack([f, np.roll(f, -1, axis=1)], axis=2).reshape(-1, 2)
-    _, inverse, counts = np.unique(np.sort(half, axis=1), axis=0, return_inverse=True, return_counts=True)
-    boundary = (counts[inverse.reshape(-1)] == 1).reshape(-1, 3)
+    _, inverse, counts = unique_rows(np.sort(half, axis=1))
+    boundary = (counts[inverse] == 1).reshape(-1, 3)
     if not boundary.any():
         return None
     v = np.asarray(vertices, dtype=np.float64)
