@@ -11,7 +11,7 @@ encoder reported" holds by construction (and is tested).
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import NamedTuple
 
 import numpy as np
@@ -350,36 +350,46 @@ class Job:
 
             self.rim = input_rim(self.normalized, self.f)
 
-    def config(self, points: int, quantization: Quantization | None) -> FitConfig:
+    def config(self, points: int, quantization: Quantization | None, feature_only: bool = False) -> FitConfig:
+        """The fit's settings at `points`. feature_only: the start is kept as the point set (no resampling, no
+        relocation) and its points next to creases take plane distances (rate_control's feature-only fit)."""
+        schedule = scaled_schedule(self.schedule, points) if self.scale_iterations else self.schedule
+        if feature_only:
+            schedule = replace(schedule, resample_at=(), relocate=0.0)
         return FitConfig(
             points=points,
             sh_degree=self.sh_degree,
-            schedule=scaled_schedule(self.schedule, points) if self.scale_iterations else self.schedule,
+            schedule=schedule,
             init=self.init,
             seed=self.seed,
             quantization=quantization,
             smoothing=self.smoothing,
             subdivision=self.subdivision,
+            plane_distances=feature_only,
         )
 
-    def main_stage(self, points: int, quantization: Quantization | None) -> tuple[FitContext, Params]:
+    def main_stage(
+        self, points: int, quantization: Quantization | None, feature_only: bool = False
+    ) -> tuple[FitContext, Params]:
         """Targets, start and main stage of a fit at `points` (`fit.loop.fit_main`); its context and parameters."""
         from tetweave_codec.fit.loop import fit_main
 
-        return fit_main(self.normalized, self.f, self.config(points, quantization), self.device, self.progress)
+        config = self.config(points, quantization, feature_only)
+        return fit_main(self.normalized, self.f, config, self.device, self.progress)
 
     def stage(
-        self, points: int, quantization: Quantization | None = None
+        self, points: int, quantization: Quantization | None = None, feature_only: bool = False
     ) -> tuple[FitContext, Finalized, Quantization]:
         """The fixed point set of a version-2 file of about `points` points, before the late stage: its context, the
         Finalized points and their quantization. Fit layout: the main stage, then the grid of `quantization`
-        (default_quantization(points) when None). Grid layout: the band whose cells hold about `points` points."""
+        (default_quantization(points) when None). Grid layout: the band whose cells hold about `points` points.
+        feature_only: see `config`."""
         if self.layout == "grid":
             from tetweave_codec.fit.grid import frame_for_cell
 
             return self.grid_stage(frame_for_cell(self.grid_band().cell_for_points(points)))
         quantization = default_quantization(points) if quantization is None else quantization
-        ctx, params = self.main_stage(points, quantization)
+        ctx, params = self.main_stage(points, quantization, feature_only)
         with deterministic_torch():
             fixed = finalize(params, ctx, quantization.position_bits, quantization.grid_scale)
         return ctx, fixed, quantization

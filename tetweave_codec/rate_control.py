@@ -112,6 +112,21 @@ PRECISION_RAMP_POINTS = (6144, 8192)
 S_BYTES_PER_HALVING = 0.19
 
 
+# --max-error on inputs with sharp creases first tries a feature-only fit: the feature-aware start at
+# FEATURE_FIT_POINTS points (feature points, the box corners and the few fill points the crease clearance leaves),
+# its points next to creases at plane distances, kept as the point set (no resampling or relocation), s steps
+# FEATURE_FIT_STEP_SCALE x the default. Tried only when that start alone, decoded, is within FEATURE_FIT_START_SHARE
+# of the target (a start costs ~1 s; a fit of 64 points ~25 s on one thread), and kept only when the fit meets it.
+# Why: an exact start does not stay exact through the usual fit. A cube at 64 points: start Chamfer 3e-10 (26
+# points), main stage with the resampling to 64 points 2.8e-3, without it 1.6e-4; the s step's rounding costs the
+# rest (steps x1 / x0.25 / x0.1 / x0.03 / x0.01: 175 / 181 / 186 / 192 / 193 B at 4.9e-4 / 4.0e-4 / 1.6e-4 / 5.5e-5
+# / 3.6e-5). The usual search sized a 1e-4 cube at ~13K points. Parts whose start is not near exact (three boxes:
+# 8e-2 at 64 points; fandisk) skip it (benchmarks/results/creases.md, "Session 13").
+FEATURE_FIT_POINTS = 64
+FEATURE_FIT_STEP_SCALE = 0.03
+FEATURE_FIT_START_SHARE = 0.5
+
+
 @dataclass(frozen=True)
 class Candidate:
     """A quantization tried on the finalized points of a --size fit: `estimate` bytes of the file it would pack
@@ -349,6 +364,9 @@ def encode_to_error(job, max_error: float):
 
     if not (math.isfinite(max_error) and max_error > 0):
         raise InputError(f"the maximum error must be a positive number, got {max_error}")
+    feature_fit = _feature_only_trial(job, max_error, decode_detailed)
+    if feature_fit is not None:
+        return _smallest_within(job, feature_fit, max_error, FEATURE_FIT_POINTS, decode_detailed, "feature-only fit")
     aim = ERROR_AIM * max_error
     if PRIOR_ERROR_POINTS / aim > PRIOR_SPREAD * MAX_RATE_POINTS:
         raise InputError(
@@ -399,7 +417,33 @@ def encode_to_error(job, max_error: float):
         raise InputError(
             f"could not reach a maximum error of {max_error:.3g}: {top:,} points reached {runs[top].error:.3g}"
         )
-    return _smallest_within(job, runs[met[0]], max_error, met[0], decode_detailed, _exponent(runs, PRIOR_ALPHA))
+    exponent = _exponent(runs, PRIOR_ALPHA)
+    return _smallest_within(job, runs[met[0]], max_error, met[0], decode_detailed, f"error exponent {exponent:.2f}")
+
+
+def _feature_only_trial(job, max_error: float, decode) -> Trial | None:
+    """The feature-only fit (FEATURE_FIT_POINTS) when the input has sharp creases, its start alone is near the
+    target and the fit meets it; else None."""
+    if job.layout != "fit" or job.init != "sdf":
+        return None
+    from tetweave_codec.decoder import mesh_from_points
+    from tetweave_codec.fit.features import detect_features
+    from tetweave_codec.fit.initialize import initial_state_pinned
+
+    if not detect_features(job.normalized, job.f).found:
+        return None
+    n = FEATURE_FIT_POINTS
+    quant = _scaled(default_quantization(n), FEATURE_FIT_STEP_SCALE)
+    points, s, _, pinned = initial_state_pinned(
+        job.normalized, job.f, n, -1, job.seed, True, quant.position_bits, quant.grid_scale, plane_distances=True
+    )
+    if not pinned.any():
+        return None
+    v, f = mesh_from_points(points.astype(np.float64), s, None, -1)
+    if job.chamfer(v * job.scale + job.offset, f) > FEATURE_FIT_START_SHARE * max_error:
+        return None
+    trial = _fit_and_measure(job, n, quant, decode, feature_only=True)
+    return trial if trial.error <= max_error else None
 
 
 def mesh_prior(job) -> tuple[float, float]:
@@ -501,9 +545,9 @@ def _exponent(runs: dict[int, Trial], default: float) -> float:
     return min(max(alpha, 0.3), 1.3)
 
 
-def _fit_and_measure(job, points: int, quant: Quantization, decode) -> Trial:
+def _fit_and_measure(job, points: int, quant: Quantization, decode, feature_only: bool = False) -> Trial:
     """One full fit at `points`, packed, decoded (`decode`: bytes -> DecodeResult) and measured."""
-    ctx, fin, quant = job.stage(points, quant)
+    ctx, fin, quant = job.stage(points, quant, feature_only)
     with deterministic_torch():
         result = complete(fin, ctx, quant)
     data = job.pack(result, ctx)
@@ -511,7 +555,7 @@ def _fit_and_measure(job, points: int, quant: Quantization, decode) -> Trial:
     return Trial(ctx, result, data, job.chamfer(out.vertices, out.faces), out)
 
 
-def _smallest_within(job, run: Trial, max_error: float, points: int, decode, alpha: float):
+def _smallest_within(job, run: Trial, max_error: float, points: int, decode, note: str):
     """Coarser steps on the same fit (no refit) while the error stays within the target; the smallest file."""
     ctx, result = run.ctx, run.result
     quant = result.quantization
@@ -529,5 +573,5 @@ def _smallest_within(job, run: Trial, max_error: float, points: int, decode, alp
             break
         best = (trial, trial_data, trial_err, trial_out)
     result, data, err, out = best
-    extra = {"target_error": max_error, "rate_control": f"{points} points, error exponent {alpha:.2f}"}
+    extra = {"target_error": max_error, "rate_control": f"{points} points, {note}"}
     return job.result(result, ctx, points, data=data, decoded=out, chamfer=err, extra=extra)

@@ -181,6 +181,9 @@ class FitConfig:
     init: str = "sdf"  # "sdf" (from the input) or "random" (the paper's ball)
     # "sdf" start: place pinned points around sharp creases when the input has some (fit.features)
     features: bool = True
+    # "sdf" start with feature points: the other points next to a crease take plane distances as s
+    # (fit.features.polyhedral_distance; rate_control's feature-only fit)
+    plane_distances: bool = False
     backend: str = "auto"  # Delaunay backend, see delaunay.resolve_backend
     seed: int = 0
     # None: container v1 (float16 positions, s and c); else container v2 with this quantization.

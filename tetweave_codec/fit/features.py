@@ -297,17 +297,78 @@ def _crease_samples(features: Features, spacing: float) -> tuple[np.ndarray, np.
 
 def crease_distance(features: Features, queries: np.ndarray) -> np.ndarray:
     """(M,) distance from each query (M,3) to the nearest crease edge (inf without creases)."""
+    return _nearest_crease(features, queries)[0]
+
+
+def _nearest_crease(features: Features, queries: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Distance (M,) from each query (M,3) to the nearest crease edge (inf without creases) and that edge's index
+    (M,) into ``features.edges`` (-1 without creases)."""
     q = np.asarray(queries, dtype=np.float64).reshape(-1, 3)
     if len(features.edges) == 0 or len(q) == 0:
-        return np.full(len(q), np.inf)
+        return np.full(len(q), np.inf), np.full(len(q), -1, dtype=np.int64)
     a = features.vertices[features.edges[:, 0]]
     ab = features.vertices[features.edges[:, 1]] - a
     best = np.full(len(q), np.inf)
+    which = np.full(len(q), -1, dtype=np.int64)
     chunk = max(1, 4_000_000 // max(len(q), 1))
     for lo in range(0, len(a), chunk):
         aa, dd = a[lo : lo + chunk], ab[lo : lo + chunk]
         rel = q[:, None, :] - aa[None]
         tt = np.clip((rel * dd[None]).sum(-1) / np.maximum((dd * dd).sum(-1), 1e-30)[None], 0.0, 1.0)
         d = np.linalg.norm(rel - tt[..., None] * dd[None], axis=-1)
-        best = np.minimum(best, d.min(1))
-    return best
+        k = d.argmin(1)
+        dk = d[np.arange(len(q)), k]
+        better = dk < best
+        best[better], which[better] = dk[better], lo + k[better]
+    return best, which
+
+
+def polyhedral_distance(features: Features, queries: np.ndarray, sdf: np.ndarray) -> np.ndarray:
+    """The input's signed distance ``sdf`` (M,) at queries (M,3), replaced by a plane distance where the closest
+    surface point is on a crease or a corner.
+
+    Near a crease the Euclidean signed distance is not linear: outside a convex crease (inside a concave one) it
+    grows like the distance to the crease line, while the faces' planes give max(d1, d2) (min for concave). A
+    tet whose corners carry the plane distances of one face reproduces that face exactly; Euclidean distances
+    at a crease's outside make every tet there cut the crease off. A query whose crease distance equals |sdf|
+    (its closest surface point lies on the crease) takes max(d1, d2) of the crease's two face planes when
+    outside, min(d1, d2) when inside; at a corner, the max or min over the corner's planes. The result keeps
+    the sign of ``sdf`` (never more than |sdf| away from it: a plane is never farther than a point on it), or
+    ``sdf`` is kept (saddle corners, planes seen from the wrong side). Queries elsewhere keep ``sdf``.
+
+    Args:
+        features: from ``detect_features`` (same frame as the queries).
+        queries: (M,3) positions. sdf: (M,) their signed distances to the input, negative inside.
+    Returns:
+        (M,) float64 signed distances.
+    """
+    q = np.asarray(queries, dtype=np.float64).reshape(-1, 3)
+    base = np.asarray(sdf, dtype=np.float64).reshape(-1)
+    out = base.copy()
+    if not features.found or len(q) == 0:
+        return out
+    tol = 1e-6 * np.abs(base) + 1e-12
+    dist, edge = _nearest_crease(features, q)
+    on = dist <= np.abs(base) + tol
+    if on.any():
+        i = np.nonzero(on)[0]
+        e = edge[i]
+        origin = features.vertices[features.edges[e, 0]]
+        d = np.einsum("mkd,md->mk", features.normals[e], q[i] - origin)  # (m,2) distances to the two planes
+        out[i] = _same_sign(np.where(base[i] > 0, d.max(1), d.min(1)), base[i])
+    if len(features.corners):
+        corner_pos = features.vertices[features.corners]
+        dc, k = cKDTree(corner_pos).query(q)
+        for i in np.nonzero(dc <= np.abs(base) + tol)[0]:
+            normals = features.corner_normals[k[i]]
+            if len(normals) < 3:
+                continue
+            d = normals @ (q[i] - corner_pos[k[i]])
+            out[i] = _same_sign(np.array([d.max() if base[i] > 0 else d.min()]), base[i : i + 1])[0]
+    return out
+
+
+def _same_sign(candidate: np.ndarray, sdf: np.ndarray) -> np.ndarray:
+    """candidate where it has the sign of sdf and is nonzero, else sdf."""
+    ok = (np.sign(candidate) == np.sign(sdf)) & (candidate != 0)
+    return np.where(ok, candidate, sdf)

@@ -20,7 +20,14 @@ import igl
 import numpy as np
 
 from tetweave_codec.errors import InputError
-from tetweave_codec.fit.features import Features, crease_distance, detect_features, feature_points, snap_to_grid
+from tetweave_codec.fit.features import (
+    Features,
+    crease_distance,
+    detect_features,
+    feature_points,
+    polyhedral_distance,
+    snap_to_grid,
+)
 from tetweave_codec.geometry.closest import SurfaceTree
 from tetweave_codec.geometry.sh import check_degree, num_coeffs
 from tetweave_codec.geometry.triangles import face_areas, face_normals, sample_surface
@@ -317,16 +324,22 @@ def initial_state_pinned(
     features: bool = True,
     position_bits: int | None = None,
     grid_scale: float = 1.0,
+    plane_distances: bool = False,
     **kwargs: float,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """``initial_state`` plus a (m,) bool mask of the feature points, which the fit keeps in place."""
+    """``initial_state`` plus a (m,) bool mask of the feature points, which the fit keeps in place.
+
+    With ``plane_distances`` (and feature points), every other point whose closest input point lies on a crease
+    or a corner takes its plane distance (``fit.features.polyhedral_distance``) instead of the Euclidean one."""
     check_degree(sh_degree)  # ValueError
     rng = np.random.default_rng(seed)
     feat = detect_features(vertices, faces) if features else None
     tree = SurfaceTree(vertices, faces)
     state = None
     if feat is not None and feat.found:
-        state = _feature_state(vertices, faces, n, rng, feat, position_bits, grid_scale, tree, **kwargs)
+        state = _feature_state(
+            vertices, faces, n, rng, feat, position_bits, grid_scale, tree, plane_distances, **kwargs
+        )
     if state is None:
         points = initial_points(vertices, faces, n, rng, tree=tree, **kwargs).astype(np.float32)
         s = signed_distance(points, vertices, faces, tree).astype(np.float32)
@@ -349,6 +362,7 @@ def _feature_state(
     position_bits: int | None,
     grid_scale: float,
     tree: SurfaceTree,
+    plane_distances: bool,
     **kwargs: float,
 ) -> tuple[np.ndarray, np.ndarray, int] | None:
     """Feature points (with plane-distance s) + the usual layout minus shell points near creases.
@@ -362,7 +376,7 @@ def _feature_state(
     for _ in range(MAX_SPACING_STEPS):
         if len(fpts) <= budget:
             break
-        spacing *= math.sqrt(len(fpts) / max(budget, 1))
+        spacing *= math.sqrt(len(fpts) / (MAX_FEATURE_FRACTION * n))
         fpts, fs, planes = feature_points(feat, spacing)
     if len(fpts) > budget:
         # Many corners and few points: the corners' pairs alone exceed the budget (a wider spacing removes none
@@ -382,6 +396,8 @@ def _feature_state(
     points = np.concatenate([rest[:N_CORNERS], fpts, rest[N_CORNERS:]]).astype(np.float32)
     points = _separate_duplicates(points, rng, scale=1e-4 * spacing).astype(np.float32)
     s = signed_distance(points, vertices, faces, tree)
+    if plane_distances:
+        s = polyhedral_distance(feat, points, s)
     s[N_CORNERS : N_CORNERS + len(fpts)] = fs
     return points, s.astype(np.float32), len(fpts)
 

@@ -354,6 +354,7 @@ def start(vertices: np.ndarray, faces: np.ndarray, ctx: FitContext) -> Params:
             features=config.features,
             position_bits=None if quant is None else quant.position_bits,
             grid_scale=1.0 if quant is None else quant.grid_scale,
+            plane_distances=config.plane_distances,
         )
     elif config.init == "random":
         points, s, c = random_state(n_start, config.sh_degree, config.seed)
