@@ -364,9 +364,6 @@ def encode_to_error(job, max_error: float):
 
     if not (math.isfinite(max_error) and max_error > 0):
         raise InputError(f"the maximum error must be a positive number, got {max_error}")
-    feature_fit = _feature_only_trial(job, max_error, decode_detailed)
-    if feature_fit is not None:
-        return _smallest_within(job, feature_fit, max_error, FEATURE_FIT_POINTS, decode_detailed, "feature-only fit")
     aim = ERROR_AIM * max_error
     if PRIOR_ERROR_POINTS / aim > PRIOR_SPREAD * MAX_RATE_POINTS:
         raise InputError(
@@ -384,6 +381,10 @@ def encode_to_error(job, max_error: float):
             f"{int(min(first, 1e12)):,} points for it by its prior ({holes}rate control fits at most "
             f"{MAX_RATE_POINTS:,})"
         )
+    # After the refusals above: a target the prior puts out of reach is out of reach of 64 points too.
+    feature_fit = _feature_only_trial(job, max_error, decode_detailed)
+    if feature_fit is not None:
+        return _smallest_within(job, feature_fit, max_error, FEATURE_FIT_POINTS, decode_detailed, "feature-only fit")
     # The first fit is sized with part of F: P's decimation probe already carries part of the holes' cost, so
     # P / N + F counted it twice and overshot (stanford-bunny: first fits at 0.75-0.82 of the target, files +16 % /
     # +58 % at 2e-3 / 1e-3); without F the bunny's 1e-3 fit missed once P was recalibrated.
