@@ -372,11 +372,11 @@ def _feature_state(
     area = float(face_areas(vertices, faces).sum())
     spacing = CREASE_SPACING * math.sqrt(area / max(n, 1))
     fpts, fs, planes = feature_points(feat, spacing)
-    budget = int(MAX_FEATURE_FRACTION * n)
+    budget = MAX_FEATURE_FRACTION * n
     for _ in range(MAX_SPACING_STEPS):
         if len(fpts) <= budget:
             break
-        spacing *= math.sqrt(len(fpts) / (MAX_FEATURE_FRACTION * n))
+        spacing *= math.sqrt(len(fpts) / budget)
         fpts, fs, planes = feature_points(feat, spacing)
     if len(fpts) > budget:
         # Many corners and few points: the corners' pairs alone exceed the budget (a wider spacing removes none
