@@ -107,8 +107,9 @@ def _shell_cells(rng: np.random.Generator, bits: int, count: int, shape: str) ->
 
 def seed_files(seed: int = 0, max_points: int = 3000, holes: bool = True) -> list[tuple[str, bytes]]:
     """Valid version-2 files (name, bytes) covering every header variant the writer produces; see module doc.
-    holes: add copies of a few of them with a holes section (flags bit 7); without them the list is that of
-    before holes existed, so the campaign's recorded cases replay."""
+    holes: add copies of a few of them with a holes section (flags bit 7), and of the smoothed ones with
+    crease-preserving smoothing (bit 7 of the position-bits byte); without them the list is that of before holes
+    existed, so the campaign's recorded cases replay."""
     rng = np.random.default_rng([seed, 2**31])
     files = []
     variants = [(bits, degree) for bits in (6, 8, 10, 12) for degree in (-1, 0, 1, 2, 3)]
@@ -141,7 +142,17 @@ def seed_files(seed: int = 0, max_points: int = 3000, holes: bool = True) -> lis
         files.append((f"tiny-n{n}", pack_v2(f)))
     if holes:
         files += [(f"{name}-holes", h) for name, data in files[:: len(variants) // 4] if (h := _with_holes(data))]
+        files += [(f"{name}-creases", _with_creases(data)) for name, data in files[1 : len(variants) : 3]]
     return files
+
+
+def _with_creases(data: bytes) -> bytes:
+    """`data` with crease-preserving smoothing (bit 7 of the position-bits byte; smoothing steps as they are)."""
+    from dataclasses import replace
+
+    from tetweave_codec.formats.tw2 import unpack_v2
+
+    return pack_v2(replace(unpack_v2(data), creases=True, sizes=None))
 
 
 def _with_holes(data: bytes) -> bytes | None:
@@ -442,7 +453,9 @@ def _classify_closed(result) -> tuple[str, str]:
         from tetweave_codec.geometry.intersections import self_intersecting_faces
 
         # the decoder's own normalized-frame mesh (the transform back may round vertices together)
-        nv, nf = mesh_from_points(c.points, c.s, c.c, c.sh_degree, result.backend, c.smoothing, c.subdivision)
+        nv, nf = mesh_from_points(
+            c.points, c.s, c.c, c.sh_degree, result.backend, c.smoothing, c.subdivision, getattr(c, "creases", False)
+        )
         try:
             crossing = int(self_intersecting_faces(nv, nf).sum())
         except RuntimeError:  # the decoder falls back to the unsmoothed surface in this case too

@@ -142,7 +142,8 @@ def _smoothing_note(result) -> str:
     steps, levels = result.container.smoothing, result.container.subdivision
     if not steps and not levels:
         return ""
-    parts = [f"{steps} smoothing step{'s' if steps > 1 else ''}"] if steps else []
+    creases = " keeping creases" if getattr(result.container, "creases", False) else ""
+    parts = [f"{steps} smoothing step{'s' if steps > 1 else ''}{creases}"] if steps else []
     parts += [f"{levels} subdivision level{'s' if levels > 1 else ''}"] if levels else []
     back = f", {result.restored:,} vertices kept unsmoothed" if result.restored else ""
     return f"; {' + '.join(parts)} {result.seconds.get('smoothing', 0.0):.2f}s{back}"

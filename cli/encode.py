@@ -173,6 +173,13 @@ def _progress_lines(every_s: float = PROGRESS_LINE_SECONDS):
     "optimizes the subdivided surface; 0 = none).  [default: 1; 0 for inputs with sharp creases (CAD) and with "
     "--format-version 1]",
 )
+@click.option(
+    "--keep-creases/--round-creases",
+    default=None,
+    help="v2: the decoder's smoothing keeps the surface's creases (edges whose faces turn by more than 30 degrees "
+    "move only along the crease, corners stay) or rounds them like the rest.  [default: keep for inputs with "
+    "sharp creases (CAD)]",
+)
 @device_option
 @click.option("--seed", type=int, default=0, help="Seed of every random choice: same seed, same bytes.")
 @threads_option
@@ -197,6 +204,7 @@ def encode(
     c_step: float | None,
     smoothing: int | None,
     subdivision: int | None,
+    keep_creases: bool | None,
     device: str,
     seed: int,
     threads: int,
@@ -230,6 +238,7 @@ def encode(
         c_step=c_step,
         smoothing=smoothing,
         subdivision=subdivision,
+        keep_creases=keep_creases,
         device=device,
         seed=seed,
         threads=threads or (BATCH_THREADS if batch else 0),

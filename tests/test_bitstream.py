@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import struct
 import zlib
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -50,7 +51,7 @@ def shell_file(n=600, bits=9, seed=0, flags=FLAG_OCTREE_CONTEXTS | 2) -> TetWeav
 
 def assert_same(f: TetWeaveFileV2, g: TetWeaveFileV2):
     assert np.array_equal(f.cells, g.cells) and np.array_equal(f.s_sym, g.s_sym) and np.array_equal(f.c_sym, g.c_sym)
-    assert (f.position_bits, f.sh_degree, f.flags) == (g.position_bits, g.sh_degree, g.flags)
+    assert (f.position_bits, f.sh_degree, f.flags, f.creases) == (g.position_bits, g.sh_degree, g.flags, g.creases)
     assert f.s_step == g.s_step and tuple(f.c_band_steps) == tuple(g.c_band_steps)
     assert f.scale == g.scale and np.array_equal(f.offset, g.offset)
 
@@ -229,6 +230,7 @@ def v2_files(draw):
     f = TetWeaveFileV2(
         cells[perm], s_sym[perm], c_sym[perm], bits, float(np.float32(draw(st.floats(1e-6, 10)))), steps,
         degree, draw(st.floats(1e-6, 1e6)), rng.normal(size=3), draw(st.integers(0, 7)),
+        creases=draw(st.booleans()),
     )  # fmt: skip
     return f, perm
 
@@ -243,7 +245,7 @@ def test_round_trip_of_symbols_is_exact(case):
     order = np.argsort(perm)  # back to canonical order
     expected = TetWeaveFileV2(
         f.cells[order], f.s_sym[order], f.c_sym[order], f.position_bits, f.s_step, f.c_band_steps, f.sh_degree,
-        f.scale, f.offset, f.flags,
+        f.scale, f.offset, f.flags, creases=f.creases,
     )  # fmt: skip
     assert_same(g, expected)
     assert_valid(g)
@@ -540,6 +542,9 @@ def test_n_above_the_format_limit_is_rejected_before_decoding():
         (11, "<b", 4, "SH degree"),
         (12, "<B", 5, "position bits"),
         (12, "<B", 17, "position bits"),
+        (12, "<B", 9 | 1 << 5, "position bits"),  # bits 5-6 of the position-bits byte are 0
+        (12, "<B", 9 | 1 << 6, "position bits"),
+        (12, "<B", 17 | 1 << 7, "position bits"),  # the creases bit does not make b 17 valid
         (17, "<d", 0.0, "scale"),
         (17, "<d", float("inf"), "scale"),
         (17, "<d", 1.7e308, "float64 range"),  # 1.2 x 1.7e308 overflows: decoded vertices would be infinite
@@ -615,3 +620,17 @@ def test_decode_and_info_read_version_2(tmp_path):
     assert out.exit_code == 0, out.output
     for word in ("version 2", "10 bits/axis", "s step 0.001", "positions", "bits/point", "checksum    4"):
         assert word in out.output
+
+
+def test_creases_bit_is_bit_7_of_the_position_bits_byte():
+    """Crease-preserving smoothing is bit 7 of byte 12 (formats/README.md): b keeps bits 0-4, and a file without
+    the bit keeps its bytes."""
+    f = random_file(n=40, degree=1, bits=9)
+    plain = pack_v2(f)
+    assert plain[12] == 9 and not tw.unpack(plain).creases
+    marked = pack_v2(replace(f, creases=True))
+    assert marked[12] == 9 | 1 << 7
+    assert marked[:12] == plain[:12] and marked[13:-4] == plain[13:-4]  # that byte and the checksum only
+    g = tw.unpack(marked)
+    assert g.creases and g.position_bits == 9
+    assert_same(g, replace(tw.unpack(plain), creases=True))

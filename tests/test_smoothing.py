@@ -210,17 +210,17 @@ def test_encoder_refuses_bad_smoothing():
         encode(m.vertices, m.faces, points=128, smoothing=1, container_version=1)
 
 
-def test_input_defaults_turn_filter_and_sh_off_for_cad_parts_only():
-    from tetweave_codec.encoder import CREASED_SH_DEGREE, DEFAULT_SH_DEGREE, input_defaults
+def test_input_defaults_keep_creases_and_drop_subdivision_and_sh_for_cad_parts_only():
+    from tetweave_codec.encoder import CREASED_SH_DEGREE, CREASED_SMOOTHING, DEFAULT_SH_DEGREE, input_defaults
     from tetweave_codec.fit.config import DEFAULT_SMOOTHING, DEFAULT_SUBDIVISION
 
     cube = manifold3d.Manifold.cube([2, 1, 1], True).to_mesh()
     chosen = input_defaults(np.asarray(cube.vert_properties)[:, :3] * 50, np.asarray(cube.tri_verts))
-    assert chosen == (0, 0, CREASED_SH_DEGREE) == (0, 0, -1)
+    assert chosen == (CREASED_SMOOTHING, 0, CREASED_SH_DEGREE, True) == (1, 0, -1, True)
     ball = trimesh.creation.icosphere(3)
-    smooth = (DEFAULT_SMOOTHING, DEFAULT_SUBDIVISION, DEFAULT_SH_DEGREE)
+    smooth = (DEFAULT_SMOOTHING, DEFAULT_SUBDIVISION, DEFAULT_SH_DEGREE, False)
     assert input_defaults(ball.vertices * 1e-3, ball.faces) == smooth
-    assert input_defaults(ball.vertices, ball.faces) == (1, 1, 1)
+    assert input_defaults(ball.vertices, ball.faces) == (1, 1, 1, False)
 
 
 def test_encode_reports_the_sh_degree_it_chose():
@@ -233,3 +233,143 @@ def test_encode_reports_the_sh_degree_it_chose():
     assert result.stats["sh_degree"] == -1 and unpack(result.data).sh_degree == -1
     result = encode(v, f, points=128, quality="fast", iters=4, measure=False, device="cpu", sh_degree=1)
     assert result.stats["sh_degree"] == 1 and unpack(result.data).sh_degree == 1
+
+
+# --- crease-preserving smoothing (bit 7 of the position-bits byte; geometry.smoothing.crease_neighbours) ---
+
+
+def _box(divisions: int = 6, size=(2.0, 1.0, 1.0)) -> trimesh.Trimesh:
+    """A closed box whose faces are grids of divisions x divisions quads (interior vertices to smooth)."""
+    box = trimesh.creation.box(extents=size)
+    for _ in range(int(np.log2(divisions))):
+        box = box.subdivide()
+    box.merge_vertices()
+    return box
+
+
+def _plane_distances(v: np.ndarray, size) -> np.ndarray:
+    """Distance of each vertex to the nearest of the box's six planes (0 on the surface)."""
+    half = np.asarray(size) / 2
+    return np.min(np.abs(np.abs(v) - half), axis=1)
+
+
+def test_crease_edges_of_a_cube_are_its_twelve_edges():
+    from tetweave_codec.geometry.smoothing import crease_edges
+
+    cube = trimesh.creation.box()
+    e = mesh_edges(cube.faces, 8, closed=True)
+    sharp = crease_edges(cube.vertices, cube.faces, e)
+    assert sharp.sum() == 24  # 12 edges, both directions; the 6 face diagonals are flat
+    lengths = np.linalg.norm(cube.vertices[e[:, 0]] - cube.vertices[e[:, 1]], axis=1)
+    np.testing.assert_allclose(lengths[sharp], 1.0)
+    # both directions of an edge agree
+    key = {tuple(x): s for x, s in zip(e.tolist(), sharp, strict=True)}
+    assert all(key[(b, a)] == s for (a, b), s in key.items())
+
+
+def test_crease_threshold_is_thirty_degrees():
+    """Two triangles hinged on an edge, closed by their mirror image: the hinge is a crease above 30 degrees."""
+    from tetweave_codec.geometry.smoothing import CREASE_COS, crease_edges
+
+    assert CREASE_COS == np.cos(np.radians(30.0))
+    for angle, expected in ((25.0, False), (35.0, True)):
+        t = np.radians(angle)
+        v = np.array([[0.0, 0, 0], [1, 0, 0], [0.5, 1, 0], [0.5, -np.cos(t), np.sin(t)]])
+        f = np.array([[0, 1, 2], [1, 0, 3], [0, 2, 3], [1, 3, 2]])  # a closed tetrahedron
+        e = mesh_edges(f, 4, closed=True)
+        sharp = crease_edges(v, f, e)
+        hinge = np.all(np.sort(e, axis=1) == [0, 1], axis=1)
+        assert sharp[hinge].all() == expected
+
+
+def test_crease_preserving_smoothing_keeps_a_cube_exact_and_flattens_its_faces():
+    """Corners (three crease edges) stay, crease vertices move along their crease, face vertices are smoothed
+    within the plane: a noisy box comes back closer to its planes while every crease and corner stays put; the
+    plain filter rounds the edges."""
+    size = (2.0, 1.0, 1.0)
+    box = _box(8, size)
+    v = np.asarray(box.vertices, dtype=np.float64)
+    f = np.asarray(box.faces, dtype=np.int64)
+    on_plane = (np.abs(np.abs(v) - np.asarray(size) / 2) < 1e-9).sum(axis=1)
+    rng = np.random.default_rng(0)
+    noisy = v.copy()
+    interior = on_plane == 1  # vertices on one face only: push them off their plane a little
+    normal_axis = np.argmin(np.abs(np.abs(v) - np.asarray(size) / 2), axis=1)
+    noisy[interior, normal_axis[interior]] += rng.normal(0, 0.01, interior.sum())
+    out = surface_filter.filter_surface(noisy, f, 2, 0, creases=True)
+    assert not out.gave_up
+    np.testing.assert_array_equal(out.vertices[on_plane == 3], v[on_plane == 3])  # corners never move
+    crease = on_plane == 2
+    np.testing.assert_allclose(_plane_distances(out.vertices[crease], size), 0.0, atol=1e-12)  # still on the edge
+    assert _plane_distances(out.vertices[interior], size).mean() < 0.7 * _plane_distances(noisy[interior], size).mean()
+    plain = surface_filter.filter_surface(noisy, f, 2, 0)
+    assert _plane_distances(plain.vertices[on_plane >= 2], size).max() > 0.01  # the plain filter rounds them
+
+
+def test_the_fits_crease_map_is_the_decoders_filter():
+    """FilterMap with crease_neighbours (the fit's differentiable filter) computes filter_surface(creases=True)
+    on a marching-tets surface with creases (a box's), and its backward is the transposed map."""
+    from tetweave_codec.geometry.smoothing import crease_neighbours
+
+    rng = np.random.default_rng(1)
+    pts = rng.uniform(-1, 1, (1500, 3))
+    s = np.max(np.abs(pts) / [0.8, 0.5, 0.6], axis=1) - 1.0  # a box's (non-Euclidean) distance: sharp edges
+    v0, f0 = mesh_from_points(pts, s, None, -1)
+    e = mesh_edges(f0, len(v0), closed=True)
+    edges = crease_neighbours(v0, f0, e)
+    assert 0 < len(edges) < len(e)
+    ref = surface_filter.filter_surface(v0, f0, 1, 0, creases=True)
+    vt = torch.tensor(v0, dtype=torch.float64, requires_grad=True)
+    op = FilterMap(torch.as_tensor(f0), len(v0), 1, 0, edges)
+    if ref.restored == 0:
+        np.testing.assert_allclose(op(vt).detach().numpy(), ref.vertices, rtol=0, atol=1e-13)
+    np.testing.assert_allclose(op(vt).detach().numpy(), taubin(v0, f0, 1, edges=edges), rtol=0, atol=1e-13)
+    # backward = the transposed map: <op(x), y> == <x, op^T(y)> for random x, y
+    y = torch.as_tensor(rng.normal(size=v0.shape))
+    (op(vt) * y).sum().backward()
+    x = rng.normal(size=v0.shape)
+    lhs = float((op(torch.as_tensor(x)) * y).sum())
+    rhs = float((torch.as_tensor(x) * vt.grad).sum())
+    assert abs(lhs - rhs) <= 1e-9 * max(1.0, abs(lhs))
+
+
+def test_mesh_from_points_keeps_creases_closed_and_uncrossed():
+    rng = np.random.default_rng(2)
+    pts = rng.uniform(-1, 1, (1200, 3))
+    s = np.max(np.abs(pts) / [0.8, 0.5, 0.6], axis=1) - 1.0
+    v0, f0 = mesh_from_points(pts, s, None, -1)
+    v1, f1 = mesh_from_points(pts, s, None, -1, smoothing=1, creases=True)
+    v2, _ = mesh_from_points(pts, s, None, -1, smoothing=1)
+    np.testing.assert_array_equal(f0, f1)
+    assert not np.array_equal(v0, v1) and not np.array_equal(v1, v2)
+    mesh = manifold3d.Manifold(manifold3d.Mesh(vert_properties=v1.astype(np.float32), tri_verts=f1.astype(np.uint32)))
+    assert mesh.status() == manifold3d.Error.NoError
+    assert not self_intersecting_faces(v1, f1).any()
+
+
+def test_a_cad_part_is_encoded_with_crease_preserving_smoothing_and_decodes_to_the_report():
+    """The encoder's default for inputs with sharp creases: one crease-preserving step, fitted through in the late
+    stage; the file carries the bit, decodes to exactly the reported mesh, closed, 2-manifold, uncrossed. With
+    --round-creases (keep_creases=False) the same input gets the plain filter."""
+    from tetweave_codec.encoder import encode
+    from tetweave_codec.formats.tw import unpack
+
+    torch.set_num_threads(1)
+    part = manifold3d.Manifold.cube([1, 1, 1], True) - manifold3d.Manifold.cylinder(1.2, 0.3, 0.3, 32).translate(
+        [0, 0, -0.6]
+    )
+    mesh = part.to_mesh()
+    v, f = np.asarray(mesh.vert_properties)[:, :3], np.asarray(mesh.tri_verts)
+    r = encode(v, f, points=600, quality="fast", iters=40, device="cpu")
+    tw = unpack(r.data)
+    assert (tw.smoothing, tw.subdivision, tw.creases) == (1, 0, True)
+    d = decode_detailed(r.data)
+    np.testing.assert_array_equal(d.vertices, r.vertices)
+    np.testing.assert_array_equal(d.faces, r.faces)
+    assert not self_intersecting_faces(d.vertices, d.faces).any()
+    out = manifold3d.Mesh(vert_properties=d.vertices.astype(np.float32), tri_verts=d.faces.astype(np.uint32))
+    assert manifold3d.Manifold(out).status() == manifold3d.Error.NoError
+    rounded = encode(v, f, points=600, quality="fast", iters=40, device="cpu", keep_creases=False)
+    assert (unpack(rounded.data).smoothing, unpack(rounded.data).creases) == (1, False)
+    with pytest.raises(InputError, match="version 2"):
+        encode(v, f, points=600, keep_creases=True, container_version=1)

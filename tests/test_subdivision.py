@@ -253,11 +253,11 @@ def test_encoder_keeps_the_smoothing_alone_when_the_decoder_drops_the_subdivided
 
     real = decoder.filter_surface
 
-    def never_settles(vertices, faces, smoothing, subdivision):
+    def never_settles(vertices, faces, smoothing, subdivision, creases=False):
         if subdivision:
             v = np.asarray(vertices, np.float64)
             return surface_filter.FilteredSurface(v, np.asarray(faces, np.int64), len(v), True)
-        return real(vertices, faces, smoothing, subdivision)
+        return real(vertices, faces, smoothing, subdivision, creases)
 
     monkeypatch.setattr(decoder, "filter_surface", never_settles)
     torch.set_num_threads(1)

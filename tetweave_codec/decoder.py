@@ -72,6 +72,7 @@ def mesh_from_points(
     backend: str = "auto",
     smoothing: int = 0,
     subdivision: int = 0,
+    creases: bool = False,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Extract the TetWeave surface of a point cloud (in the frame of `points`).
 
@@ -83,10 +84,11 @@ def mesh_from_points(
         backend: Delaunay backend, "auto", "tetgen" or "qhull" (must match the container's flags).
         smoothing: Taubin steps 0-3 (the container's flags bits 3-4).
         subdivision: Loop levels 0-2 after the smoothing (flags bits 5-6).
+        creases: crease-preserving smoothing (bit 7 of the position-bits byte).
     Returns:
         vertices (V, 3) float64, faces (F, 3) int64 (outward; both empty when s has one sign only).
     """
-    result = _extract(points, s, c, sh_degree, backend, {}, time.perf_counter, smoothing, subdivision)
+    result = _extract(points, s, c, sh_degree, backend, {}, time.perf_counter, smoothing, subdivision, creases)
     return result.vertices, result.faces
 
 
@@ -99,7 +101,7 @@ class _Extracted(NamedTuple):
     children: int  # faces per extracted face: 4^L, or 1 when the filter was dropped
 
 
-def _extract(points, s, c, sh_degree, backend, seconds, clock, smoothing=0, subdivision=0) -> _Extracted:
+def _extract(points, s, c, sh_degree, backend, seconds, clock, smoothing=0, subdivision=0, creases=False) -> _Extracted:
     """The closed surface and how it was made, timing each stage into `seconds`."""
     check_degree(sh_degree)
     pts = np.asarray(points, dtype=np.float64)
@@ -118,7 +120,7 @@ def _extract(points, s, c, sh_degree, backend, seconds, clock, smoothing=0, subd
     t1 = clock()
     mt = marching_tets_numpy(pts, tz.tets, s, coeffs, tz.hull_faces)
     t2 = clock()
-    out = filter_surface(mt.vertices, mt.faces, smoothing, subdivision)
+    out = filter_surface(mt.vertices, mt.faces, smoothing, subdivision, creases)
     seconds["delaunay"] = t1 - t0
     seconds["marching_tets"] = t2 - t1
     seconds["smoothing"] = clock() - t2
@@ -159,7 +161,8 @@ def decode_detailed(data: bytes, backend: str | None = None, clock=time.perf_cou
                 stacklevel=2,
             )
             backend = available_backends()[0]
-    ex = _extract(tw.points, tw.s, tw.c, tw.sh_degree, backend, seconds, clock, tw.smoothing, tw.subdivision)
+    creases = getattr(tw, "creases", False)  # version 1 has none
+    ex = _extract(tw.points, tw.s, tw.c, tw.sh_degree, backend, seconds, clock, tw.smoothing, tw.subdivision, creases)
     closed_v = ex.vertices * float(tw.scale) + tw.offset
     vertices, faces = closed_v, ex.faces
     holes = getattr(tw, "holes", None)

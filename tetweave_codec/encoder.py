@@ -42,6 +42,11 @@ DEFAULT_SH_DEGREE = 1
 # 0.97-0.99, 5 KB 0.85-1.10 (three seeds, noise); CSG parts at 1-2 KB median 0.93. On the smooth meshes degree 1
 # stays (igea 10 KB 1.075 without it, spot 0.978-1.000, stanford-bunny 0.978-1.014).
 CREASED_SH_DEGREE = -1
+# Taubin steps of inputs with sharp creases (`input_defaults`): one crease-preserving step (the smoothing keeps the
+# extracted surface's creases, geometry.smoothing.crease_neighbours), fitted through in the late stage only
+# (FitConfig.main_filter); no subdivision, which would round the creases. Measured in benchmarks/results/creases.md
+# (session 14) against no smoothing.
+CREASED_SMOOTHING = 1
 # Samples per mesh of the Chamfer distance in the summary: enough for ~1e-5 resolution in the normalized frame.
 SUMMARY_CHAMFER_SAMPLES = 100_000
 MAX_POINTS = 1 << 22
@@ -136,6 +141,7 @@ def encode(
     subdivision: int | None = None,
     layout: str = "fit",
     holes: str = "close",
+    keep_creases: bool | None = None,
 ) -> EncodeResult:
     """Fit a TetWeave representation to a triangle mesh and return the `.tw` bytes and the decoded mesh.
 
@@ -155,6 +161,9 @@ def encode(
         `input_defaults`' choice for container version 2, 0 for version 1 (which cannot store it).
     subdivision: Loop levels 0-2 the decoder applies after the smoothing (the fit optimizes the subdivided
         surface); None = `input_defaults`' choice for container version 2, 0 for version 1.
+    keep_creases: the decoder's smoothing keeps the creases of the extracted surface (edges whose faces turn by
+        more than 30 degrees; geometry.smoothing.crease_neighbours) instead of rounding them; None =
+        `input_defaults`' choice (on for inputs with sharp creases). Only with smoothing, container version 2.
     layout: where the points come from (see LAYOUTS): "fit" (placed by the fit, then snapped to the grid),
         "grid" (the cells of a lattice in a band around the input, fit.grid; container version 2 only; `points`
         sets the cell size: the band holds about that many points) or "best" (with `size` or `max_error` only:
@@ -195,13 +204,16 @@ def encode(
         raise InputError(f"subdivision must be 0-{MAX_SUBDIVISION} levels, got {subdivision}")
     if subdivision and container_version != 2:
         raise InputError("subdivision needs container version 2")
-    if smoothing is None or subdivision is None or sh_degree is None:
+    if keep_creases and container_version != 2:
+        raise InputError("keeping creases in the smoothing needs container version 2")
+    if smoothing is None or subdivision is None or sh_degree is None or keep_creases is None:
         chosen = input_defaults(v, f)
         if container_version != 2:  # version 1 stores neither filter
-            chosen = chosen._replace(smoothing=0, subdivision=0)
+            chosen = chosen._replace(smoothing=0, subdivision=0, creases=False)
         smoothing = chosen.smoothing if smoothing is None else smoothing
         subdivision = chosen.subdivision if subdivision is None else subdivision
         sh_degree = chosen.sh_degree if sh_degree is None else sh_degree
+        keep_creases = chosen.creases if keep_creases is None else keep_creases
 
     def make_job(layout: str) -> Job:
         return Job(
@@ -219,6 +231,7 @@ def encode(
             subdivision=subdivision,
             layout=layout,
             keep_holes=holes == "keep",
+            creases=bool(keep_creases and smoothing),
         )
 
     if layout == "best":
@@ -287,6 +300,7 @@ class InputDefaults(NamedTuple):
     smoothing: int
     subdivision: int
     sh_degree: int
+    creases: bool = False  # the smoothing keeps the surface's creases
 
 
 def input_defaults(vertices: np.ndarray, faces: np.ndarray) -> InputDefaults:
@@ -301,7 +315,7 @@ def input_defaults(vertices: np.ndarray, faces: np.ndarray) -> InputDefaults:
     from tetweave_codec.meshio import normalize
 
     if detect_features(normalize(vertices)[0], faces).found:
-        return InputDefaults(0, 0, CREASED_SH_DEGREE)
+        return InputDefaults(CREASED_SMOOTHING, 0, CREASED_SH_DEGREE, creases=True)
     return InputDefaults(DEFAULT_SMOOTHING, DEFAULT_SUBDIVISION, DEFAULT_SH_DEGREE)
 
 
@@ -326,10 +340,12 @@ class Job:
         subdivision=0,
         layout="fit",
         keep_holes=False,
+        creases=False,
     ):
         """scale_iterations: run `fit.config.scaled_schedule` of `schedule` for each point count (off when the
         caller fixed the iterations). smoothing, subdivision: the decoder's Taubin steps and Loop levels (stored
-        in the file). layout: "fit" or "grid" (LAYOUTS). keep_holes: every packed file of an open input lists
+        in the file); creases: the smoothing keeps the surface's creases (stored in the file). layout: "fit" or
+        "grid" (LAYOUTS). keep_holes: every packed file of an open input lists
         the faces that span its holes (HOLES "keep")."""
         from tetweave_codec.meshio import normalize
 
@@ -339,7 +355,7 @@ class Job:
         self.sh_degree, self.schedule, self.quality = sh_degree, schedule, quality
         self.device, self.seed, self.init, self.progress = device, seed, init, progress
         self.scale_iterations = scale_iterations
-        self.smoothing, self.subdivision = smoothing, subdivision
+        self.smoothing, self.subdivision, self.creases = smoothing, subdivision, bool(creases)
         self.layout = layout
         self.seconds: dict[str, float] = {}
         self.detail: float | None = None  # rate_control.input_detail, once asked for
@@ -365,6 +381,8 @@ class Job:
             quantization=quantization,
             smoothing=self.smoothing,
             subdivision=self.subdivision,
+            creases=self.creases,
+            main_filter=not self.creases,
             plane_distances=feature_only,
         )
 
@@ -438,7 +456,8 @@ class Job:
 
     def pack(self, fin: FinishResult, ctx: FitContext) -> bytes:
         """The file of `fin`, with the holes section when the job keeps an open input's holes."""
-        data = self.pack_as(fin, ctx.backend, ctx.frame_scale, ctx.config.smoothing, ctx.config.subdivision)
+        cfg = ctx.config
+        data = self.pack_as(fin, ctx.backend, ctx.frame_scale, cfg.smoothing, cfg.subdivision, cfg.creases)
         return data if self.rim is None else self.with_holes(data)
 
     def with_holes(self, data: bytes) -> bytes:
@@ -476,9 +495,11 @@ class Job:
         self.seconds["holes"] = self.seconds.get("holes", 0.0) + time.perf_counter() - t0
         return files[0][1] if files else data
 
-    def pack_as(self, fin: FinishResult, backend: str, frame_scale: float, smoothing: int, subdivision: int) -> bytes:
+    def pack_as(
+        self, fin: FinishResult, backend: str, frame_scale: float, smoothing: int, subdivision: int, creases: bool
+    ) -> bytes:
         """The bytes of `fin` for a fit in the frame normalized x frame_scale (the transform divides it out)."""
-        result = FitResult(fin, self.sh_degree, backend, {}, [], smoothing, subdivision)
+        result = FitResult(fin, self.sh_degree, backend, {}, [], smoothing, subdivision, creases)
         return pack_result(result, self.scale / frame_scale, self.offset)
 
     def _kept_filter(self, data: bytes, full, chamfer: float | None):
@@ -584,7 +605,7 @@ def pack_result(result: FitResult, scale: float, offset: np.ndarray) -> bytes:
         "flags": backend_flags(result.backend),
     }
     if fin.version == 1:
-        if result.smoothing or result.subdivision:
+        if result.smoothing or result.subdivision or result.creases:
             raise ValueError("container version 1 cannot store smoothing or subdivision")
         return pack(TetWeaveFile(points=fin.points, s=fin.s, c=fin.c, **shared))
     shared["flags"] |= smoothing_flags(result.smoothing) | subdivision_flags(result.subdivision)
@@ -604,6 +625,7 @@ def pack_result(result: FitResult, scale: float, offset: np.ndarray) -> bytes:
             position_bits=q.position_bits,
             s_step=q.s_step,
             c_band_steps=steps,
+            creases=bool(result.creases and result.smoothing),
             **shared,
         )
     )

@@ -280,7 +280,9 @@ def _grid_to_size(job, size: int, measure: bool):
         quant = job.grid_quantization(frame, len(cells))
         c = np.zeros((len(cells), num_coeffs(job.sh_degree)))
         fin = requantize(Q.dequantize_positions(cells, frame.stored_bits), cells, s, c, quant, job.sh_degree)
-        return len(job.pack_as(fin, backend, frame.frame_scale, job.smoothing, job.subdivision)), len(cells)
+        return len(job.pack_as(fin, backend, frame.frame_scale, job.smoothing, job.subdivision, job.creases)), len(
+            cells
+        )
 
     cell = math.sqrt(band.area / max(aim, 1.0))  # ~1 byte per point, ~2 band cells per cell^2 of area
     tried: dict[float, tuple[int, int]] = {}

@@ -194,6 +194,21 @@ class FitConfig:
     # Loop subdivision levels the decoder applies after the smoothing (v2 flags bits 5-6,
     # geometry/subdivision.py); the fit optimizes the subdivided surface.
     subdivision: int = 0
+    # The decoder's smoothing keeps the creases of the extracted surface (geometry.smoothing.crease_neighbours;
+    # container v2, position-bits byte bit 7); the fit optimizes through the same filter.
+    creases: bool = False
+    # Whether the main stage fits through the decoder's filter too (else only the late stage does, on the fixed
+    # points). Off with `creases` (encoder.Job): the creases of a surface whose points move come and go at every
+    # iteration; fandisk, bytes x Chamfer against no smoothing, 5 / 10 / 20 KB: both stages 0.99 / 0.88 / 0.93,
+    # the late stage alone 0.88 / 0.89 / 0.92 at less CPU (benchmarks/results/creases.md, session 14).
+    main_filter: bool = True
+
+    def stage_filter(self, main: bool) -> tuple[int, int]:
+        """(Taubin steps, Loop levels) a stage fits through: the decoder's, except in a main stage without
+        `main_filter`."""
+        if main and not self.main_filter:
+            return 0, 0
+        return self.smoothing, self.subdivision
 
 
 # Taubin steps of `tetweave encode` (container v2; encoder.input_defaults turns it off on inputs with sharp

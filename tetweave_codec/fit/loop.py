@@ -79,7 +79,8 @@ class FitResult:
     finish: the stored arrays (float16 for v1, integer symbols for v2), see finish.FinishResult.
     backend: Delaunay backend of the final triangulation; the decoder must use the same.
     stage_seconds: wall time per stage. history: (stage, iteration, loss) samples.
-    smoothing: Taubin steps of the decoder, subdivision: its Loop levels (both stored in version-2 flags).
+    smoothing: Taubin steps of the decoder, subdivision: its Loop levels (both stored in version-2 flags);
+    creases: the smoothing keeps the extracted surface's creases (version 2, bit 7 of the position-bits byte).
     """
 
     finish: FinishResult
@@ -89,6 +90,7 @@ class FitResult:
     history: list[tuple[str, int, float]]
     smoothing: int = 0
     subdivision: int = 0
+    creases: bool = False
 
 
 def _importance(params: Params, grid: Grid, ctx: FitContext) -> tuple[Tensor, Tensor, Tensor] | None:
@@ -98,9 +100,11 @@ def _importance(params: Params, grid: Grid, ctx: FitContext) -> tuple[Tensor, Te
     Returns (grid (R,R,R), bbox_min (3,), bbox_max (3,)) or None when the current mesh is empty.
     """
     with torch.no_grad():
+        smoothing, subdivision = ctx.config.stage_filter(main=True)
         mt = extract(
-            params.points, params.s, params.c, grid, smoothing=ctx.config.smoothing, subdivision=ctx.config.subdivision
-        )
+            params.points, params.s, params.c, grid, smoothing=smoothing, subdivision=subdivision,
+            creases=ctx.config.creases,
+        )  # fmt: skip
         if mt.faces.shape[0] == 0:
             return None
         if ctx.surface is not None:
@@ -266,8 +270,9 @@ def fit(
     with deterministic_torch():
         result = finish(params, ctx)
     return FitResult(
-        result, config.sh_degree, ctx.backend, ctx.seconds, ctx.history, config.smoothing, config.subdivision
-    )
+        result, config.sh_degree, ctx.backend, ctx.seconds, ctx.history, config.smoothing, config.subdivision,
+        config.creases,
+    )  # fmt: skip
 
 
 def fit_main(

@@ -19,7 +19,7 @@ import numpy as np
 
 from tetweave_codec.errors import ContainerError
 from tetweave_codec.geometry.intersections import self_intersecting_faces
-from tetweave_codec.geometry.smoothing import TAUBIN_LAMBDA, TAUBIN_MU, mesh_edges, taubin
+from tetweave_codec.geometry.smoothing import TAUBIN_LAMBDA, TAUBIN_MU, crease_neighbours, mesh_edges, taubin
 from tetweave_codec.geometry.subdivision import level_matrix, loop_and_midpoint, loop_level
 
 # Self-intersection checks before the decoder gives up on the filter altogether (the unsmoothed surface of an
@@ -44,9 +44,12 @@ class FilteredSurface(NamedTuple):
     gave_up: bool
 
 
-def filter_surface(vertices: np.ndarray, faces: np.ndarray, smoothing: int, subdivision: int) -> FilteredSurface:
+def filter_surface(
+    vertices: np.ndarray, faces: np.ndarray, smoothing: int, subdivision: int, creases: bool = False
+) -> FilteredSurface:
     """The decoder's filter of a closed, consistently oriented marching-tets surface vertices (V,3), faces (F,3):
-    `smoothing` Taubin steps, `subdivision` Loop levels, then `restore_crossings` against the reference.
+    `smoothing` Taubin steps (crease-preserving with `creases`: over `smoothing.crease_neighbours` of the surface
+    as extracted), `subdivision` Loop levels, then `restore_crossings` against the reference.
     ContainerError when the subdivided surface would have more than MAX_SUBDIVIDED_FACES faces."""
     v0 = np.asarray(vertices, dtype=np.float64)
     f0 = np.asarray(faces, dtype=np.int64)
@@ -59,7 +62,8 @@ def filter_surface(vertices: np.ndarray, faces: np.ndarray, smoothing: int, subd
         return FilteredSurface(v0, f0, 0, False)
     # marching tets' output is a checked closed 2-manifold: its half-edges are the edges, once each way
     edges = mesh_edges(f0, len(v0), closed=True)
-    v = taubin(v0, f0, smoothing, edges=edges) if smoothing > 0 else v0
+    smooth_edges = crease_neighbours(v0, f0, edges) if creases and smoothing > 0 else edges
+    v = taubin(v0, f0, smoothing, edges=smooth_edges) if smoothing > 0 else v0
     reference, f = v0, f0
     if subdivision > 0:
         v, reference, f = loop_and_midpoint(v, v0, f0, subdivision, neighbours=edges)
@@ -114,11 +118,18 @@ class FilterMap:
     (deterministic under the fit's deterministic mode).
     """
 
-    def __init__(self, faces: Any, num_vertices: int, smoothing: int, subdivision: int):
+    def __init__(
+        self, faces: Any, num_vertices: int, smoothing: int, subdivision: int, smooth_edges: np.ndarray | None = None
+    ):
         self.smoothing, self.subdivision = int(smoothing), int(subdivision)
         self.num_vertices = int(num_vertices)
+        # the directed edges the Taubin steps average over (None: every edge; crease-preserving smoothing passes
+        # `smoothing.crease_neighbours`), kept so that the fit can tell when its creases changed
+        self.smooth_edges = smooth_edges
         # the factors in the order they apply (scipy CSR, float64) and the filtered faces (numpy int64)
-        self.matrices, self._faces_np = _factors(faces, self.num_vertices, self.smoothing, self.subdivision)
+        self.matrices, self._faces_np = _factors(
+            faces, self.num_vertices, self.smoothing, self.subdivision, smooth_edges
+        )
         self._by_kind: dict = {}
         self.faces_out = None  # set on first call, on the input's device
 
@@ -174,16 +185,18 @@ def _apply_indexed(vertices: Any, factors: list) -> Any:
     return v
 
 
-def _factors(faces: Any, n: int, smoothing: int, subdivision: int):
-    """([CSR factors in the order they apply], faces after subdivision (numpy int64))."""
+def _factors(faces: Any, n: int, smoothing: int, subdivision: int, smooth_edges: np.ndarray | None = None):
+    """([CSR factors in the order they apply], faces after subdivision (numpy int64)); the Taubin factors average
+    over `smooth_edges` (E,2) when given, else over every edge."""
     import scipy.sparse as sps
 
     f = np.asarray(faces.cpu().numpy() if hasattr(faces, "cpu") else faces, dtype=np.int64)
     mats = []
     e = mesh_edges(f, n) if len(f) else None
     if smoothing > 0 and len(f):
-        deg = np.bincount(e[:, 0], minlength=n).astype(np.float64)
-        mean = sps.csr_matrix((1.0 / deg[e[:, 0]], (e[:, 0], e[:, 1])), shape=(n, n))
+        se = e if smooth_edges is None else np.asarray(smooth_edges, dtype=np.int64).reshape(-1, 2)
+        deg = np.bincount(se[:, 0], minlength=n).astype(np.float64)
+        mean = sps.csr_matrix((1.0 / deg[se[:, 0]], (se[:, 0], se[:, 1])), shape=(n, n))
         # vertices without neighbours keep their place (W's row is 0 there: the identity row instead)
         eye = sps.identity(n, format="csr")
         lap = mean + sps.diags((deg == 0).astype(np.float64)) - eye

@@ -42,7 +42,7 @@ def sh_degree_value(text: str) -> int | None:
 
 
 # Options added to EncodeOptions after batch manifests existed, with the value runs before them had.
-LATER_OPTIONS = {"layout": "fit", "holes": "close"}
+LATER_OPTIONS = {"layout": "fit", "holes": "close", "keep_creases": None}
 
 
 @dataclass(frozen=True)
@@ -52,7 +52,8 @@ class EncodeOptions:
     sh_degree: "auto", "none" or "0".."3". size: target bytes; max_error: target Chamfer distance (rate control).
     format_version: 1 or 2. position_bits (fractional ones: formats.quantize.fractional_grid) / s_step / c_step:
     v2 quantization overrides (None = the defaults for `points`; not with the grid layout, which has its own).
-    smoothing, subdivision: the decoder's Taubin steps and Loop levels (None = the encoder's default). layout:
+    smoothing, subdivision: the decoder's Taubin steps and Loop levels (None = the encoder's default).
+    keep_creases: the smoothing keeps the surface's creases (None = the encoder's default). layout:
     "fit", "grid" or "best" (encoder.LAYOUTS). holes: "close" or "keep" (encoder.HOLES: an open input's holes
     spanned, or kept open). threads: torch CPU threads (0 = torch's default). measure: compute the Chamfer distance.
     """
@@ -71,6 +72,7 @@ class EncodeOptions:
     c_step: float | None = None
     smoothing: int | None = None
     subdivision: int | None = None
+    keep_creases: bool | None = None
     device: str = "auto"
     seed: int = 0
     threads: int = 0
@@ -123,6 +125,7 @@ class EncodeOptions:
             measure=self.measure,
             smoothing=self.smoothing,
             subdivision=self.subdivision,
+            keep_creases=self.keep_creases,
         )
 
 
