@@ -18,6 +18,7 @@ from tetweave_codec.formats.common import KNOWN_FLAGS_V2, smoothing_flags, smoot
 from tetweave_codec.geometry import surface_filter
 from tetweave_codec.geometry.intersections import self_intersecting_faces
 from tetweave_codec.geometry.smoothing import TAUBIN_LAMBDA, TAUBIN_MU, mesh_edges, taubin
+from tetweave_codec.geometry.subdivision import loop_and_midpoint
 from tetweave_codec.geometry.surface_filter import FilterMap, restore_crossings
 
 
@@ -306,10 +307,12 @@ def test_crease_preserving_smoothing_keeps_a_cube_exact_and_flattens_its_faces()
     assert _plane_distances(plain.vertices[on_plane >= 2], size).max() > 0.01  # the plain filter rounds them
 
 
-def test_the_fits_crease_map_is_the_decoders_filter():
-    """FilterMap with crease_neighbours (the fit's differentiable filter) computes filter_surface(creases=True)
-    on a marching-tets surface with creases (a box's), and its backward is the transposed map."""
-    from tetweave_codec.geometry.smoothing import crease_neighbours
+@pytest.mark.parametrize("levels", [0, 1])
+def test_the_fits_crease_map_is_the_decoders_filter(levels):
+    """FilterMap with creases (the fit's differentiable filter) computes filter_surface(creases=True) on a
+    marching-tets surface with creases (a box's), with and without a Loop level, and its backward is the
+    transposed map."""
+    from tetweave_codec.geometry.smoothing import crease_edges, crease_neighbours
 
     rng = np.random.default_rng(1)
     pts = rng.uniform(-1, 1, (1500, 3))
@@ -318,14 +321,19 @@ def test_the_fits_crease_map_is_the_decoders_filter():
     e = mesh_edges(f0, len(v0), closed=True)
     edges = crease_neighbours(v0, f0, e)
     assert 0 < len(edges) < len(e)
-    ref = surface_filter.filter_surface(v0, f0, 1, 0, creases=True)
+    ref = surface_filter.filter_surface(v0, f0, 1, levels, creases=True)
     vt = torch.tensor(v0, dtype=torch.float64, requires_grad=True)
-    op = FilterMap(torch.as_tensor(f0), len(v0), 1, 0, edges)
-    if ref.restored == 0:
-        np.testing.assert_allclose(op(vt).detach().numpy(), ref.vertices, rtol=0, atol=1e-13)
-    np.testing.assert_allclose(op(vt).detach().numpy(), taubin(v0, f0, 1, edges=edges), rtol=0, atol=1e-13)
+    sharp = crease_edges(v0, f0, e)
+    op = FilterMap(torch.as_tensor(f0), len(v0), 1, levels, sharp)
+    # the decoder's filter before its crossing check (FilterMap leaves the check out)
+    expected = taubin(v0, f0, 1, edges=edges)
+    if levels:
+        expected = loop_and_midpoint(expected, v0, f0, levels, neighbours=e, creases=sharp[e[:, 0] < e[:, 1]])[0]
+    np.testing.assert_allclose(op(vt).detach().numpy(), expected, rtol=0, atol=1e-13)
+    moved = np.abs(ref.vertices - expected).max(axis=1) > 0
+    assert moved.sum() <= ref.restored  # the decoder's result differs only where it put vertices back
     # backward = the transposed map: <op(x), y> == <x, op^T(y)> for random x, y
-    y = torch.as_tensor(rng.normal(size=v0.shape))
+    y = torch.as_tensor(rng.normal(size=ref.vertices.shape))
     (op(vt) * y).sum().backward()
     x = rng.normal(size=v0.shape)
     lhs = float((op(torch.as_tensor(x)) * y).sum())
@@ -373,3 +381,20 @@ def test_a_cad_part_is_encoded_with_crease_preserving_smoothing_and_decodes_to_t
     assert (unpack(rounded.data).smoothing, unpack(rounded.data).creases) == (1, False)
     with pytest.raises(InputError, match="version 2"):
         encode(v, f, points=600, keep_creases=True, container_version=1)
+
+
+@pytest.mark.parametrize("levels", [1, 2])
+def test_crease_loop_subdivision_keeps_a_box_a_box(levels):
+    """Loop's crease rules: on a box, crease edges' new vertices are midpoints, crease vertices move along their
+    crease, corners stay and face vertices stay in their plane: the subdivided box is the box, at one level and
+    two (the halves of a crease edge are creases). Plain Loop rounds it."""
+    size = (2.0, 1.0, 1.0)
+    box = _box(4, size)
+    v, f = np.asarray(box.vertices, dtype=np.float64), np.asarray(box.faces, dtype=np.int64)
+    out = surface_filter.filter_surface(v, f, 0, levels, creases=True)
+    assert not out.gave_up and len(out.faces) == len(f) * 4**levels
+    np.testing.assert_allclose(_plane_distances(out.vertices, size), 0.0, atol=1e-12)
+    corners = np.abs(np.abs(out.vertices) - np.asarray(size) / 2).max(axis=1) < 1e-12
+    assert corners.sum() == 8
+    plain = surface_filter.filter_surface(v, f, 0, levels)
+    assert _plane_distances(plain.vertices, size).max() > 0.02

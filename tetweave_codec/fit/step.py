@@ -21,7 +21,7 @@ from tetweave_codec.fit.surface_loss import SurfaceTarget
 from tetweave_codec.fit.targets import Targets
 from tetweave_codec.geometry.delaunay import tetrahedralize
 from tetweave_codec.geometry.marching_tets import Topology, marching_tets, marching_tets_topology
-from tetweave_codec.geometry.smoothing import crease_neighbours, edge_faces, mesh_edges
+from tetweave_codec.geometry.smoothing import crease_edges, edge_faces, mesh_edges
 from tetweave_codec.geometry.surface_filter import FilterMap
 from tetweave_codec.render import render_maps
 
@@ -145,8 +145,8 @@ def extract(
     out = mt
     if (smoothing > 0 or subdivision > 0) and mt.faces.shape[0] > 0:
         f = cache.filter
-        smooth_edges = None
-        if creases and smoothing > 0:
+        sharp = None
+        if creases:
             # the decoder finds the creases on the surface it extracts: so does the fit, at every call (the
             # topology may stay while the vertices move), and the map is rebuilt when they change
             faces_np = mt.faces.cpu().numpy()
@@ -154,14 +154,14 @@ def extract(
                 cache.edges = mesh_edges(faces_np, mt.vertices.shape[0])
                 cache.sides = edge_faces(faces_np, cache.edges, mt.vertices.shape[0])
             vertices_np = mt.vertices.detach().cpu().numpy().astype(np.float64)
-            smooth_edges = crease_neighbours(vertices_np, faces_np, cache.edges, cache.sides)
+            sharp = crease_edges(vertices_np, faces_np, cache.edges, cache.sides)
         if (
             f is None
             or (f.smoothing, f.subdivision) != (smoothing, subdivision)
-            or (f.smooth_edges is None) != (smooth_edges is None)
-            or (smooth_edges is not None and not np.array_equal(f.smooth_edges, smooth_edges))
+            or (f.sharp is None) != (sharp is None)
+            or (sharp is not None and not np.array_equal(f.sharp, sharp))
         ):
-            f = cache.filter = FilterMap(mt.faces, mt.vertices.shape[0], smoothing, subdivision, smooth_edges)
+            f = cache.filter = FilterMap(mt.faces, mt.vertices.shape[0], smoothing, subdivision, sharp)
         out = mt._replace(vertices=f(mt.vertices))
         if subdivision > 0:
             out = out._replace(faces=f.faces_out, face_tets=mt.face_tets.repeat_interleave(4**subdivision))

@@ -137,10 +137,14 @@ def crease_neighbours(
     rounded nor pulled towards the faces beside them.
     """
     e = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
-    sharp = crease_edges(vertices, faces, e, sides)
-    count = np.bincount(e[sharp, 0], minlength=len(vertices))[e[:, 0]]
-    keep = np.where(count == 0, ~sharp, (count == 2) & sharp)
-    return e[keep]
+    return neighbours_along_creases(e, crease_edges(vertices, faces, e, sides), len(vertices))
+
+
+def neighbours_along_creases(edges: np.ndarray, sharp: np.ndarray, num_vertices: int) -> np.ndarray:
+    """`crease_neighbours`' rule for directed edges (E,2) whose creases `sharp` (E,) are known: the edges of
+    vertices on no crease, the crease edges of vertices on exactly two, none of the others; same order."""
+    count = np.bincount(edges[sharp, 0], minlength=int(num_vertices))[edges[:, 0]]
+    return edges[np.where(count == 0, ~sharp, (count == 2) & sharp)]
 
 
 def taubin(

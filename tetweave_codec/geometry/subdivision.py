@@ -19,6 +19,12 @@ one level of vertices (V,3) and faces (F,3):
 * Faces: face f = (a, b, c) with edge vertices m_ab, m_bc, m_ca becomes faces 4f .. 4f + 3:
   (a, m_ab, m_ca), (m_ab, b, m_bc), (m_ca, m_bc, c), (m_ab, m_bc, m_ca), which keeps the orientation.
 
+* Crease rules (files with crease-preserving smoothing, bit 7 of the position-bits byte; `loop_level`'s
+  `creases`): the first level's creases are the smoothing's (`smoothing.crease_edges` of the extracted surface),
+  a later level's the halves of the level before's; a crease edge's vertex is its midpoint, a vertex on exactly
+  two crease edges `0.75 * v_i + 0.125 * (v_j1 + v_j2)` (beta = 1/8 over its two crease neighbours), a vertex on
+  one or on three and more stays, every other vertex as above (Hoppe et al. 1994's piecewise smooth surfaces).
+
 Subdivision moves vertices off the piecewise-flat surface, so in rare cases it may touch itself where it was thin;
 the decoder then puts the vertices of crossing faces back to the *midpoint* subdivision of the unsmoothed surface
 (same faces, edge vertices at `0.5 * (v_a + v_b)`, old vertices unmoved: geometrically the unsmoothed surface
@@ -37,15 +43,17 @@ from tetweave_codec.geometry.smoothing import mesh_edges
 EDGE_NEAR = 0.375  # weight of an edge's two ends in its new vertex
 EDGE_FAR = 0.125  # weight of the two opposite corners
 BETA_VALENCE_3 = 0.1875  # Warren's beta for three neighbours; 3 / (8k) above
+BETA_CREASE = 0.125  # a crease vertex's weight of each of its two crease neighbours (the cubic B-spline rule)
 
 
 class LoopLevel(NamedTuple):
     """The connectivity of one Loop level of a mesh with `num_vertices` vertices (numpy int64).
 
     edges (E,2): a < b, ascending; opposite (E,2): the third corners of the edge's two faces, -1 -1 when the edge
-    does not have exactly two; faces (4F,3): the refined faces (vertex V + e is edge e's new vertex);
-    neighbours (2E,2): `smoothing.mesh_edges` of the input faces (each edge both ways, sorted by (i, j)), whose
-    order is the spec's order of the neighbour sums.
+    does not have exactly two, or is a crease; faces (4F,3): the refined faces (vertex V + e is edge e's new
+    vertex); neighbours (2E,2) or fewer: `smoothing.mesh_edges` of the input faces (each edge both ways, sorted by
+    (i, j)), whose order is the spec's order of the neighbour sums; with creases, only the edges a vertex averages
+    over (`smoothing.crease_neighbours`' rule). creases (E,) bool or None: the crease edges (crease rules, below).
     """
 
     num_vertices: int
@@ -53,12 +61,23 @@ class LoopLevel(NamedTuple):
     opposite: np.ndarray
     faces: np.ndarray
     neighbours: np.ndarray
+    creases: np.ndarray | None = None
 
 
-def loop_level(faces: Any, num_vertices: int, neighbours: np.ndarray | None = None) -> LoopLevel:
+def loop_level(
+    faces: Any,
+    num_vertices: int,
+    neighbours: np.ndarray | None = None,
+    creases: np.ndarray | None = None,
+    parent: LoopLevel | None = None,
+) -> LoopLevel:
     """The connectivity of one Loop level: faces (F,3) int (numpy or torch) over `num_vertices` vertices.
 
-    neighbours: `mesh_edges(faces, num_vertices)` when the caller has it (the decoder's smoothing does)."""
+    neighbours: `mesh_edges(faces, num_vertices)` when the caller has it (the decoder's smoothing does). creases:
+    (E,) bool over this level's edges (ascending), the crease rules (Hoppe et al. 1994): a crease edge's new
+    vertex is its midpoint, a vertex on two crease edges moves by 3/4 of itself and 1/8 of each crease neighbour,
+    a vertex on one or three and more stays, the others follow Loop's rule. parent: the level these faces came
+    from, whose crease edges' halves are this level's creases (creases then None)."""
     n = int(num_vertices)
     f = np.asarray(faces.cpu().numpy() if hasattr(faces, "cpu") else faces, dtype=np.int64).reshape(-1, 3)
     if neighbours is None:
@@ -93,14 +112,40 @@ def loop_level(faces: Any, num_vertices: int, neighbours: np.ndarray | None = No
         ],
         1,
     ).reshape(-1, 3)
-    return LoopLevel(n, edges, opposite, new, np.asarray(neighbours, dtype=np.int64))
+    neighbours = np.asarray(neighbours, dtype=np.int64)
+    if parent is not None and parent.creases is not None:
+        creases = _child_creases(parent, edges)
+    if creases is not None:
+        creases = np.asarray(creases, dtype=bool)
+        opposite[creases] = -1  # a crease edge's new vertex is its midpoint
+        # a vertex averages over its neighbours if it is on no crease, over its two crease neighbours if on two
+        directed = np.zeros(len(neighbours), dtype=bool)
+        lo, hi = np.minimum(neighbours[:, 0], neighbours[:, 1]), np.maximum(neighbours[:, 0], neighbours[:, 1])
+        at = np.searchsorted(edges[:, 0] * n + edges[:, 1], lo * n + hi)
+        directed = creases[np.minimum(at, len(creases) - 1)] if len(creases) else directed
+        count = np.bincount(neighbours[directed, 0], minlength=n)[neighbours[:, 0]]
+        neighbours = neighbours[np.where(count == 0, ~directed, (count == 2) & directed)]
+    return LoopLevel(n, edges, opposite, new, neighbours, creases)
+
+
+def _child_creases(parent: LoopLevel, edges: np.ndarray) -> np.ndarray:
+    """(E',) bool: which edges (E',2) of a level made from `parent`'s faces are halves of its crease edges: {a, m}
+    with a an old vertex and m = the new vertex of a crease edge that has a as an end."""
+    n = parent.num_vertices
+    old, new = edges[:, 0], edges[:, 1]  # a < b: an old vertex comes first
+    half = (old < n) & (new >= n)
+    e = np.where(half, new - n, 0)
+    return half & parent.creases[e] & ((parent.edges[e, 0] == old) | (parent.edges[e, 1] == old))
 
 
 def _vertex_weights(level: LoopLevel) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per old vertex: its valence k (float64), beta and 1 - k * beta (as the spec rounds them)."""
+    """Per old vertex: its valence k (float64), beta and 1 - k * beta (as the spec rounds them). With creases, a
+    vertex with two neighbours is on a crease: beta = 1/8 (3/4 of itself, 1/8 of each)."""
     k = np.bincount(level.neighbours[:, 0], minlength=level.num_vertices).astype(np.float64)
     beta = np.where(k > 3, 3.0 / (8.0 * np.maximum(k, 1.0)), BETA_VALENCE_3)
     beta[k < 3] = 0.0
+    if level.creases is not None:
+        beta[k == 2] = BETA_CREASE
     return k, beta, 1.0 - k * beta
 
 
@@ -125,10 +170,12 @@ def loop_and_midpoint(
     faces: np.ndarray,
     levels: int,
     neighbours: np.ndarray | None = None,
+    creases: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """`loop_subdivide(vertices, faces, levels)` and `midpoint_subdivide(reference, faces, levels)` (same faces),
-    the connectivity computed once: (vertices', reference', faces'). neighbours: `mesh_edges(faces, V)` if known."""
-    v, f, topology = _refine(vertices, faces, levels, midpoint=False, neighbours=neighbours)
+    the connectivity computed once: (vertices', reference', faces'). neighbours: `mesh_edges(faces, V)` if known.
+    creases: (E,) bool over the first level's edges: the crease rules (`loop_level`), kept by their halves."""
+    v, f, topology = _refine(vertices, faces, levels, midpoint=False, neighbours=neighbours, creases=creases)
     r = np.asarray(reference, dtype=np.float64)
     for level in topology:
         r = _apply_level(r, level, midpoint=True)
@@ -136,7 +183,7 @@ def loop_and_midpoint(
 
 
 def _refine(
-    vertices, faces, levels: int, midpoint: bool, neighbours: np.ndarray | None = None
+    vertices, faces, levels: int, midpoint: bool, neighbours: np.ndarray | None = None, creases=None
 ) -> tuple[np.ndarray, np.ndarray, list[LoopLevel]]:
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
@@ -144,7 +191,10 @@ def _refine(
     for _ in range(levels):
         if len(f) == 0:
             break
-        level = loop_level(f, len(v), neighbours if not topology else None)
+        if topology:
+            level = loop_level(f, len(v), parent=topology[-1])
+        else:
+            level = loop_level(f, len(v), neighbours, creases)
         v = _apply_level(v, level, midpoint)
         f = level.faces
         topology.append(level)

@@ -19,7 +19,14 @@ import numpy as np
 
 from tetweave_codec.errors import ContainerError
 from tetweave_codec.geometry.intersections import self_intersecting_faces
-from tetweave_codec.geometry.smoothing import TAUBIN_LAMBDA, TAUBIN_MU, crease_neighbours, mesh_edges, taubin
+from tetweave_codec.geometry.smoothing import (
+    TAUBIN_LAMBDA,
+    TAUBIN_MU,
+    crease_edges,
+    mesh_edges,
+    neighbours_along_creases,
+    taubin,
+)
 from tetweave_codec.geometry.subdivision import level_matrix, loop_and_midpoint, loop_level
 
 # Self-intersection checks before the decoder gives up on the filter altogether (the unsmoothed surface of an
@@ -48,8 +55,9 @@ def filter_surface(
     vertices: np.ndarray, faces: np.ndarray, smoothing: int, subdivision: int, creases: bool = False
 ) -> FilteredSurface:
     """The decoder's filter of a closed, consistently oriented marching-tets surface vertices (V,3), faces (F,3):
-    `smoothing` Taubin steps (crease-preserving with `creases`: over `smoothing.crease_neighbours` of the surface
-    as extracted), `subdivision` Loop levels, then `restore_crossings` against the reference.
+    `smoothing` Taubin steps, `subdivision` Loop levels, then `restore_crossings` against the reference. With
+    `creases`, both keep the creases found on the surface as extracted (`smoothing.crease_edges`): the Taubin steps
+    average over `smoothing.crease_neighbours`, the Loop levels follow the crease rules (`subdivision.loop_level`).
     ContainerError when the subdivided surface would have more than MAX_SUBDIVIDED_FACES faces."""
     v0 = np.asarray(vertices, dtype=np.float64)
     f0 = np.asarray(faces, dtype=np.int64)
@@ -62,11 +70,15 @@ def filter_surface(
         return FilteredSurface(v0, f0, 0, False)
     # marching tets' output is a checked closed 2-manifold: its half-edges are the edges, once each way
     edges = mesh_edges(f0, len(v0), closed=True)
-    smooth_edges = crease_neighbours(v0, f0, edges) if creases and smoothing > 0 else edges
+    smooth_edges, loop_creases = edges, None
+    if creases:
+        sharp = crease_edges(v0, f0, edges)
+        smooth_edges = neighbours_along_creases(edges, sharp, len(v0))
+        loop_creases = sharp[edges[:, 0] < edges[:, 1]]  # per undirected edge, in the Loop level's order
     v = taubin(v0, f0, smoothing, edges=smooth_edges) if smoothing > 0 else v0
     reference, f = v0, f0
     if subdivision > 0:
-        v, reference, f = loop_and_midpoint(v, v0, f0, subdivision, neighbours=edges)
+        v, reference, f = loop_and_midpoint(v, v0, f0, subdivision, neighbours=edges, creases=loop_creases)
     out, restored, gave_up = restore_crossings(v, reference, f)
     if gave_up:
         return FilteredSurface(v0, f0, len(v0), True)
@@ -119,17 +131,15 @@ class FilterMap:
     """
 
     def __init__(
-        self, faces: Any, num_vertices: int, smoothing: int, subdivision: int, smooth_edges: np.ndarray | None = None
+        self, faces: Any, num_vertices: int, smoothing: int, subdivision: int, sharp: np.ndarray | None = None
     ):
         self.smoothing, self.subdivision = int(smoothing), int(subdivision)
         self.num_vertices = int(num_vertices)
-        # the directed edges the Taubin steps average over (None: every edge; crease-preserving smoothing passes
-        # `smoothing.crease_neighbours`), kept so that the fit can tell when its creases changed
-        self.smooth_edges = smooth_edges
+        # the creases (E,) bool over `smoothing.mesh_edges(faces, V)` that the filter keeps (None: the plain
+        # filter), kept so that the fit can tell when they changed
+        self.sharp = sharp
         # the factors in the order they apply (scipy CSR, float64) and the filtered faces (numpy int64)
-        self.matrices, self._faces_np = _factors(
-            faces, self.num_vertices, self.smoothing, self.subdivision, smooth_edges
-        )
+        self.matrices, self._faces_np = _factors(faces, self.num_vertices, self.smoothing, self.subdivision, sharp)
         self._by_kind: dict = {}
         self.faces_out = None  # set on first call, on the input's device
 
@@ -185,24 +195,28 @@ def _apply_indexed(vertices: Any, factors: list) -> Any:
     return v
 
 
-def _factors(faces: Any, n: int, smoothing: int, subdivision: int, smooth_edges: np.ndarray | None = None):
-    """([CSR factors in the order they apply], faces after subdivision (numpy int64)); the Taubin factors average
-    over `smooth_edges` (E,2) when given, else over every edge."""
+def _factors(faces: Any, n: int, smoothing: int, subdivision: int, sharp: np.ndarray | None = None):
+    """([CSR factors in the order they apply], faces after subdivision (numpy int64)); with `sharp` (E,) bool over
+    `mesh_edges(faces, n)`, the filter keeps those creases (as `filter_surface(..., creases=True)`)."""
     import scipy.sparse as sps
 
     f = np.asarray(faces.cpu().numpy() if hasattr(faces, "cpu") else faces, dtype=np.int64)
     mats = []
     e = mesh_edges(f, n) if len(f) else None
+    loop_creases = None
+    if sharp is not None and len(f):
+        loop_creases = sharp[e[:, 0] < e[:, 1]]
     if smoothing > 0 and len(f):
-        se = e if smooth_edges is None else np.asarray(smooth_edges, dtype=np.int64).reshape(-1, 2)
+        se = e if sharp is None else neighbours_along_creases(e, sharp, n)
         deg = np.bincount(se[:, 0], minlength=n).astype(np.float64)
         mean = sps.csr_matrix((1.0 / deg[se[:, 0]], (se[:, 0], se[:, 1])), shape=(n, n))
         # vertices without neighbours keep their place (W's row is 0 there: the identity row instead)
         eye = sps.identity(n, format="csr")
         lap = mean + sps.diags((deg == 0).astype(np.float64)) - eye
         mats += [(eye + TAUBIN_LAMBDA * lap).tocsr(), (eye + TAUBIN_MU * lap).tocsr()] * smoothing
+    level = None
     for _ in range(subdivision if len(f) else 0):
-        level = loop_level(f, n, e)
+        level = loop_level(f, n, e, loop_creases) if level is None else loop_level(f, n, parent=level)
         e = None  # the next level's faces are new
         mats.append(level_matrix(level))
         f, n = level.faces, n + len(level.edges)
