@@ -217,7 +217,7 @@ def test_input_defaults_keep_creases_and_drop_subdivision_and_sh_for_cad_parts_o
 
     cube = manifold3d.Manifold.cube([2, 1, 1], True).to_mesh()
     chosen = input_defaults(np.asarray(cube.vert_properties)[:, :3] * 50, np.asarray(cube.tri_verts))
-    assert chosen == (CREASED_SMOOTHING, 0, CREASED_SH_DEGREE, True) == (1, 0, -1, True)
+    assert chosen == (CREASED_SMOOTHING, 0, CREASED_SH_DEGREE, True) == (3, 0, -1, True)
     ball = trimesh.creation.icosphere(3)
     smooth = (DEFAULT_SMOOTHING, DEFAULT_SUBDIVISION, DEFAULT_SH_DEGREE, False)
     assert input_defaults(ball.vertices * 1e-3, ball.faces) == smooth
@@ -370,7 +370,7 @@ def test_a_cad_part_is_encoded_with_crease_preserving_smoothing_and_decodes_to_t
     v, f = np.asarray(mesh.vert_properties)[:, :3], np.asarray(mesh.tri_verts)
     r = encode(v, f, points=600, quality="fast", iters=40, device="cpu")
     tw = unpack(r.data)
-    assert (tw.smoothing, tw.subdivision, tw.creases) == (1, 0, True)
+    assert (tw.smoothing, tw.subdivision, tw.creases) == (3, 0, True)
     d = decode_detailed(r.data)
     np.testing.assert_array_equal(d.vertices, r.vertices)
     np.testing.assert_array_equal(d.faces, r.faces)
@@ -378,7 +378,7 @@ def test_a_cad_part_is_encoded_with_crease_preserving_smoothing_and_decodes_to_t
     out = manifold3d.Mesh(vert_properties=d.vertices.astype(np.float32), tri_verts=d.faces.astype(np.uint32))
     assert manifold3d.Manifold(out).status() == manifold3d.Error.NoError
     rounded = encode(v, f, points=600, quality="fast", iters=40, device="cpu", keep_creases=False)
-    assert (unpack(rounded.data).smoothing, unpack(rounded.data).creases) == (1, False)
+    assert (unpack(rounded.data).smoothing, unpack(rounded.data).creases) == (3, False)
     with pytest.raises(InputError, match="version 2"):
         encode(v, f, points=600, keep_creases=True, container_version=1)
 

@@ -42,11 +42,13 @@ DEFAULT_SH_DEGREE = 1
 # 0.97-0.99, 5 KB 0.85-1.10 (three seeds, noise); CSG parts at 1-2 KB median 0.93. On the smooth meshes degree 1
 # stays (igea 10 KB 1.075 without it, spot 0.978-1.000, stanford-bunny 0.978-1.014).
 CREASED_SH_DEGREE = -1
-# Taubin steps of inputs with sharp creases (`input_defaults`): one crease-preserving step (the smoothing keeps the
-# extracted surface's creases, geometry.smoothing.crease_neighbours), fitted through in the late stage only
-# (FitConfig.main_filter); no subdivision, which would round the creases. Measured in benchmarks/results/creases.md
-# (session 14) against no smoothing.
-CREASED_SMOOTHING = 1
+# Taubin steps of inputs with sharp creases (`input_defaults`): three crease-preserving steps (the smoothing keeps the
+# extracted surface's creases, geometry.smoothing.crease_neighbours; three is the most the header holds), fitted
+# through in the late stage only (FitConfig.main_filter); no subdivision (it raised the edge Chamfer 1.2-2.2x).
+# fandisk, bytes x Chamfer against no smoothing at 5 / 10 / 20 / 40 KB (one thread, the same session): 1 step 0.880
+# / 0.886 / 0.918 / 0.931, 2 steps 0.828 / 0.830 / 0.893 / 0.910, 3 steps 0.788 / 0.803 / 0.885 / 0.915, with the
+# edge Chamfer lower than without smoothing at every size (benchmarks/results/creases.md, session 14).
+CREASED_SMOOTHING = 3
 # Samples per mesh of the Chamfer distance in the summary: enough for ~1e-5 resolution in the normalized frame.
 SUMMARY_CHAMFER_SAMPLES = 100_000
 MAX_POINTS = 1 << 22

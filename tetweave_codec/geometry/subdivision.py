@@ -38,7 +38,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from tetweave_codec.geometry.smoothing import mesh_edges
+from tetweave_codec.geometry.smoothing import mesh_edges, neighbours_along_creases
 
 EDGE_NEAR = 0.375  # weight of an edge's two ends in its new vertex
 EDGE_FAR = 0.125  # weight of the two opposite corners
@@ -119,12 +119,10 @@ def loop_level(
         creases = np.asarray(creases, dtype=bool)
         opposite[creases] = -1  # a crease edge's new vertex is its midpoint
         # a vertex averages over its neighbours if it is on no crease, over its two crease neighbours if on two
-        directed = np.zeros(len(neighbours), dtype=bool)
         lo, hi = np.minimum(neighbours[:, 0], neighbours[:, 1]), np.maximum(neighbours[:, 0], neighbours[:, 1])
-        at = np.searchsorted(edges[:, 0] * n + edges[:, 1], lo * n + hi)
-        directed = creases[np.minimum(at, len(creases) - 1)] if len(creases) else directed
-        count = np.bincount(neighbours[directed, 0], minlength=n)[neighbours[:, 0]]
-        neighbours = neighbours[np.where(count == 0, ~directed, (count == 2) & directed)]
+        at = np.searchsorted(edges[:, 0] * n + edges[:, 1], lo * n + hi)  # each directed edge's undirected one
+        sharp = creases[np.minimum(at, len(creases) - 1)] if len(creases) else np.zeros(len(neighbours), bool)
+        neighbours = neighbours_along_creases(neighbours, sharp, n)
     return LoopLevel(n, edges, opposite, new, neighbours, creases)
 
 
