@@ -163,7 +163,8 @@ def _progress_lines(every_s: float = PROGRESS_LINE_SECONDS):
     type=click.IntRange(0, 3),
     default=None,
     help="v2: Taubin smoothing steps the decoder applies to the surface (the fit optimizes the smoothed surface; "
-    "0 = none).  [default: 1; 0 for inputs with sharp creases (CAD) and with --format-version 1]",
+    "0 = none).  [default: 1; 3 steps that keep the creases for inputs with sharp creases (CAD); 0 with "
+    "--format-version 1]",
 )
 @click.option(
     "--subdivision",
@@ -176,9 +177,9 @@ def _progress_lines(every_s: float = PROGRESS_LINE_SECONDS):
 @click.option(
     "--keep-creases/--round-creases",
     default=None,
-    help="v2: the decoder's smoothing keeps the surface's creases (edges whose faces turn by more than 30 degrees "
-    "move only along the crease, corners stay) or rounds them like the rest.  [default: keep for inputs with "
-    "sharp creases (CAD)]",
+    help="v2: the decoder's smoothing and subdivision keep the surface's creases (vertices on edges whose faces turn "
+    "by more than 30 degrees move only along the crease, corners stay) or round them like the rest.  [default: "
+    "keep for inputs with sharp creases (CAD)]",
 )
 @device_option
 @click.option("--seed", type=int, default=0, help="Seed of every random choice: same seed, same bytes.")

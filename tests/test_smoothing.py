@@ -381,6 +381,14 @@ def test_a_cad_part_is_encoded_with_crease_preserving_smoothing_and_decodes_to_t
     assert (unpack(rounded.data).smoothing, unpack(rounded.data).creases) == (3, False)
     with pytest.raises(InputError, match="version 2"):
         encode(v, f, points=600, keep_creases=True, container_version=1)
+    # the creases bit also asks for Loop's crease rules: a subdivided file without smoothing keeps it
+    sub = encode(v, f, points=600, quality="fast", iters=40, device="cpu", smoothing=0, subdivision=1)
+    assert (unpack(sub.data).smoothing, unpack(sub.data).subdivision, unpack(sub.data).creases) == (0, 1, True)
+    d = decode_detailed(sub.data)
+    np.testing.assert_array_equal(d.vertices, sub.vertices)
+    assert not self_intersecting_faces(d.vertices, d.faces).any()
+    plain = encode(v, f, points=600, quality="fast", iters=40, device="cpu", smoothing=0, subdivision=0)
+    assert not unpack(plain.data).creases  # nothing to keep without a filter
 
 
 @pytest.mark.parametrize("levels", [1, 2])

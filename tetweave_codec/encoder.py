@@ -163,9 +163,10 @@ def encode(
         `input_defaults`' choice for container version 2, 0 for version 1 (which cannot store it).
     subdivision: Loop levels 0-2 the decoder applies after the smoothing (the fit optimizes the subdivided
         surface); None = `input_defaults`' choice for container version 2, 0 for version 1.
-    keep_creases: the decoder's smoothing keeps the creases of the extracted surface (edges whose faces turn by
-        more than 30 degrees; geometry.smoothing.crease_neighbours) instead of rounding them; None =
-        `input_defaults`' choice (on for inputs with sharp creases). Only with smoothing, container version 2.
+    keep_creases: the decoder's smoothing and subdivision keep the creases of the extracted surface (edges whose
+        faces turn by more than 30 degrees; geometry.smoothing.crease_neighbours, Loop's crease rules) instead of
+        rounding them; None = `input_defaults`' choice (on for inputs with sharp creases). Container version 2;
+        nothing to keep without smoothing or subdivision.
     layout: where the points come from (see LAYOUTS): "fit" (placed by the fit, then snapped to the grid),
         "grid" (the cells of a lattice in a band around the input, fit.grid; container version 2 only; `points`
         sets the cell size: the band holds about that many points) or "best" (with `size` or `max_error` only:
@@ -233,7 +234,7 @@ def encode(
             subdivision=subdivision,
             layout=layout,
             keep_holes=holes == "keep",
-            creases=bool(keep_creases and smoothing),
+            creases=bool(keep_creases and (smoothing or subdivision)),
         )
 
     if layout == "best":
@@ -306,13 +307,15 @@ class InputDefaults(NamedTuple):
 
 
 def input_defaults(vertices: np.ndarray, faces: np.ndarray) -> InputDefaults:
-    """The settings `encode` picks for a mesh: (DEFAULT_SMOOTHING, DEFAULT_SUBDIVISION, DEFAULT_SH_DEGREE), and
-    (0, 0, CREASED_SH_DEGREE) when the input has sharp creases (`fit.features.detect_features(...).found`: CAD
-    parts). Why: smoothing and subdivision round every crease the fit reproduces; on CSG parts smoothing doubled
-    the edge Chamfer distance at 1-2 KB (benchmarks/results/smoothing.md), while on scans and smooth shapes they
-    save bytes at equal error (benchmarks/results/subdivision.md); the SH coefficients cost CAD parts more than
-    they buy (see CREASED_SH_DEGREE). vertices (V,3) in any frame (the creases are looked for in the normalized
-    frame, as the fit's start does)."""
+    """The settings `encode` picks for a mesh: (DEFAULT_SMOOTHING, DEFAULT_SUBDIVISION, DEFAULT_SH_DEGREE, no
+    creases kept), and (CREASED_SMOOTHING, 0, CREASED_SH_DEGREE, creases kept) when the input has sharp creases
+    (`fit.features.detect_features(...).found`: CAD parts). Why: the plain smoothing and subdivision round every
+    crease the fit reproduces (on CSG parts smoothing doubled the edge Chamfer distance at 1-2 KB,
+    benchmarks/results/smoothing.md), while on scans and smooth shapes they save bytes at equal error
+    (benchmarks/results/subdivision.md); crease-preserving smoothing saves CAD parts bytes without rounding their
+    edges, Loop subdivision even with crease rules still raised their edge Chamfer (see CREASED_SMOOTHING); the SH
+    coefficients cost CAD parts more than they buy (see CREASED_SH_DEGREE). vertices (V,3) in any frame (the
+    creases are looked for in the normalized frame, as the fit's start does)."""
     from tetweave_codec.fit.features import detect_features
     from tetweave_codec.meshio import normalize
 
@@ -627,7 +630,7 @@ def pack_result(result: FitResult, scale: float, offset: np.ndarray) -> bytes:
             position_bits=q.position_bits,
             s_step=q.s_step,
             c_band_steps=steps,
-            creases=bool(result.creases and result.smoothing),
+            creases=bool(result.creases and (result.smoothing or result.subdivision)),
             **shared,
         )
     )

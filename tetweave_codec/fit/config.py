@@ -194,8 +194,9 @@ class FitConfig:
     # Loop subdivision levels the decoder applies after the smoothing (v2 flags bits 5-6,
     # geometry/subdivision.py); the fit optimizes the subdivided surface.
     subdivision: int = 0
-    # The decoder's smoothing keeps the creases of the extracted surface (geometry.smoothing.crease_neighbours;
-    # container v2, position-bits byte bit 7); the fit optimizes through the same filter.
+    # The decoder's smoothing and subdivision keep the creases of the extracted surface
+    # (geometry.smoothing.crease_neighbours, Loop's crease rules; container v2, position-bits byte bit 7); the fit
+    # optimizes through the same filter.
     creases: bool = False
     # Whether the main stage fits through the decoder's filter too (else only the late stage does, on the fixed
     # points). Off with `creases` (encoder.Job): the creases of a surface whose points move come and go at every
@@ -211,15 +212,16 @@ class FitConfig:
         return self.smoothing, self.subdivision
 
 
-# Taubin steps of `tetweave encode` (container v2; encoder.input_defaults turns it off on inputs with sharp
-# creases). Measured with benchmarks/fit_ab.py (benchmarks/results/smoothing.md): bytes x Chamfer against no
-# smoothing, 1 step: spot 0.82-0.87, stanford-bunny 0.94-0.99, igea 0.96-1.01, fandisk 0.95-1.06 (16 cases,
-# median 0.96); 2 steps helped spot more (0.78) but cost igea 11 % and fandisk 5 %.
+# Taubin steps of `tetweave encode` (container v2; on inputs with sharp creases encoder.input_defaults takes
+# crease-preserving steps instead, encoder.CREASED_SMOOTHING). Measured with benchmarks/fit_ab.py
+# (benchmarks/results/smoothing.md): bytes x Chamfer against no smoothing, 1 step: spot 0.82-0.87, stanford-bunny
+# 0.94-0.99, igea 0.96-1.01, fandisk 0.95-1.06 (16 cases, median 0.96); 2 steps helped spot more (0.78) but cost
+# igea 11 % and fandisk 5 %.
 DEFAULT_SMOOTHING = 1
-# Loop levels of `tetweave encode` after the smoothing (same exception). Measured with benchmarks/fit_ab.py
-# (benchmarks/results/subdivision.md): bytes x Chamfer against the smoothing alone, one level: spot 0.66-0.82,
-# stanford-bunny 0.89-0.95, igea 0.91-0.98 (9 cases, median 0.90) for 1.2-1.8x the CPU time; two levels gained
-# 0.4-3 % more for 2-3x the time again.
+# Loop levels of `tetweave encode` after the smoothing (none on inputs with sharp creases). Measured with
+# benchmarks/fit_ab.py (benchmarks/results/subdivision.md): bytes x Chamfer against the smoothing alone, one level:
+# spot 0.66-0.82, stanford-bunny 0.89-0.95, igea 0.91-0.98 (9 cases, median 0.90) for 1.2-1.8x the CPU time; two
+# levels gained 0.4-3 % more for 2-3x the time again.
 DEFAULT_SUBDIVISION = 1
 
 # The presets are sized for ITERATION_POINTS points; smaller fits run up to MAX_ITERATION_SCALE times more
