@@ -454,7 +454,7 @@ def _classify_closed(result) -> tuple[str, str]:
 
         # the decoder's own normalized-frame mesh (the transform back may round vertices together)
         nv, nf = mesh_from_points(
-            c.points, c.s, c.c, c.sh_degree, result.backend, c.smoothing, c.subdivision, getattr(c, "creases", False)
+            c.points, c.s, c.c, c.sh_degree, result.backend, c.smoothing, c.subdivision, c.creases
         )
         try:
             crossing = int(self_intersecting_faces(nv, nf).sum())

@@ -142,7 +142,7 @@ def _smoothing_note(result) -> str:
     steps, levels = result.container.smoothing, result.container.subdivision
     if not steps and not levels:
         return ""
-    creases = " keeping creases" if getattr(result.container, "creases", False) else ""
+    creases = " keeping creases" if result.container.creases else ""
     parts = [f"{steps} smoothing step{'s' if steps > 1 else ''}{creases}"] if steps else []
     parts += [f"{levels} subdivision level{'s' if levels > 1 else ''}"] if levels else []
     back = f", {result.restored:,} vertices kept unsmoothed" if result.restored else ""

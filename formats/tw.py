@@ -109,6 +109,11 @@ class TetWeaveFile:
         """Version 1 files are never subdivided."""
         return 0
 
+    @property
+    def creases(self) -> bool:
+        """Version 1 files have no filter whose creases to keep."""
+        return False
+
 
 def payload_size(num_points: int, sh_degree: int) -> int:
     """Raw payload size in bytes for N points and an SH degree: 2 * N * (4 + q)."""

@@ -161,8 +161,9 @@ def decode_detailed(data: bytes, backend: str | None = None, clock=time.perf_cou
                 stacklevel=2,
             )
             backend = available_backends()[0]
-    creases = getattr(tw, "creases", False)  # version 1 has none
-    ex = _extract(tw.points, tw.s, tw.c, tw.sh_degree, backend, seconds, clock, tw.smoothing, tw.subdivision, creases)
+    ex = _extract(
+        tw.points, tw.s, tw.c, tw.sh_degree, backend, seconds, clock, tw.smoothing, tw.subdivision, tw.creases
+    )
     closed_v = ex.vertices * float(tw.scale) + tw.offset
     vertices, faces = closed_v, ex.faces
     holes = getattr(tw, "holes", None)

@@ -161,7 +161,7 @@ def extract(
             or (f.sharp is None) != (sharp is None)
             or (sharp is not None and not np.array_equal(f.sharp, sharp))
         ):
-            f = cache.filter = FilterMap(mt.faces, mt.vertices.shape[0], smoothing, subdivision, sharp)
+            f = cache.filter = FilterMap(mt.faces, mt.vertices.shape[0], smoothing, subdivision, sharp, cache.edges)
         out = mt._replace(vertices=f(mt.vertices))
         if subdivision > 0:
             out = out._replace(faces=f.faces_out, face_tets=mt.face_tets.repeat_interleave(4**subdivision))

@@ -97,12 +97,12 @@ def _candidate_pairs(tri: np.ndarray) -> np.ndarray:
     return pairs[overlap]
 
 
-def _dot(u, w):
+def row_dot(u, w):
     """Row-wise u . w of (P,3) arrays, summed in the order x, y, z (as the compiled path does)."""
     return (u[:, 0] * w[:, 0] + u[:, 1] * w[:, 1]) + u[:, 2] * w[:, 2]
 
 
-def _cross(u, w):
+def row_cross(u, w):
     """Row-wise u x w of (P,3) arrays (np.cross's formula, written out so that the compiled path matches it)."""
     return np.stack(
         [
@@ -116,7 +116,7 @@ def _cross(u, w):
 
 def _orient(a: np.ndarray, b: np.ndarray, c: np.ndarray, d: np.ndarray) -> np.ndarray:
     """Signed volume (x6) of tetrahedron (a, b, c, d); positive when d is on the side of (b-a)x(c-a)."""
-    return _dot(_cross(b - a, c - a), d - a)
+    return row_dot(row_cross(b - a, c - a), d - a)
 
 
 def _segment_crosses_triangle(p, q, a, b, c, scale) -> np.ndarray:
@@ -126,9 +126,9 @@ def _segment_crosses_triangle(p, q, a, b, c, scale) -> np.ndarray:
     scale (P,) the pair's size): an end within that of the plane touches it. Why: a segment lying in the plane
     (a subdivided surface's flat reference has many, through its edge midpoints) has orientations that are
     rounding noise, whose signs must not decide."""
-    n = _cross(b - a, c - a)
-    sp, sq = _dot(n, p - a), _dot(n, q - a)
-    tol = 1e-12 * np.sqrt(_dot(n, n)) * scale
+    n = row_cross(b - a, c - a)
+    sp, sq = row_dot(n, p - a), row_dot(n, q - a)
+    tol = 1e-12 * np.sqrt(row_dot(n, n)) * scale
     s1, s2, s3 = _orient(p, q, a, b), _orient(p, q, b, c), _orient(p, q, c, a)
     same = ((s1 > 0) & (s2 > 0) & (s3 > 0)) | ((s1 < 0) & (s2 < 0) & (s3 < 0))
     return (sp * sq < 0) & (np.abs(sp) > tol) & (np.abs(sq) > tol) & same
@@ -169,10 +169,10 @@ def _pair_scale(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 def _coplanar(a: np.ndarray, b: np.ndarray, n: np.ndarray, scale: np.ndarray) -> np.ndarray:
     """Triangles a (P,3,3) lie in the plane of triangles b (P,3,3) with normals n (P,3) = (b1 - b0) x (b2 - b0),
     up to 1e-12 of |n| times `_pair_scale(a, b)`."""
-    bound = 1e-12 * np.sqrt(_dot(n, n)) * scale
+    bound = 1e-12 * np.sqrt(row_dot(n, n)) * scale
     coplanar = np.ones(len(a), dtype=bool)
     for k in range(3):
-        coplanar &= np.abs(_dot(a[:, k] - b[:, 0], n)) <= bound
+        coplanar &= np.abs(row_dot(a[:, k] - b[:, 0], n)) <= bound
     return coplanar
 
 
@@ -189,7 +189,7 @@ def _pairs_intersect(t1: np.ndarray, t2: np.ndarray, shared_one: np.ndarray, opp
                 h |= _segment_crosses_triangle(x[:, i], x[:, (i + 1) % 3], y[:, 0], y[:, 1], y[:, 2], scale)
         # coplanar pairs: no edge can properly cross (the segment tests above decide on rounding noise there),
         # the overlap in the plane decides
-        n = _cross(b[:, 1] - b[:, 0], b[:, 2] - b[:, 0])
+        n = row_cross(b[:, 1] - b[:, 0], b[:, 2] - b[:, 0])
         coplanar = _coplanar(a, b, n, scale)
         h[coplanar] = False
         if coplanar.any():
@@ -201,7 +201,7 @@ def _pairs_intersect(t1: np.ndarray, t2: np.ndarray, shared_one: np.ndarray, opp
         rows = np.arange(len(idx))
         # coplanar pairs (a subdivided surface's flat reference has many): the segment tests below would decide
         # on rounding noise, so the overlap in the plane decides (a fold around the shared vertex)
-        n = _cross(b[:, 1] - b[:, 0], b[:, 2] - b[:, 0])
+        n = row_cross(b[:, 1] - b[:, 0], b[:, 2] - b[:, 0])
         scale = _pair_scale(a, b)
         coplanar = _coplanar(a, b, n, scale)
         # opp* (P,2): local indices of the two vertices not shared, per triangle
@@ -239,8 +239,8 @@ def self_intersecting_faces(vertices: np.ndarray, faces: np.ndarray, only: np.nd
     if len(f) < 2:
         return flagged
     tri = v[f]
-    n = _cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
-    valid = np.nonzero(_dot(n, n) > 0)[0]
+    n = row_cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    valid = np.nonzero(row_dot(n, n) > 0)[0]
     if len(valid) < 2:
         return flagged
     pairs = valid[_candidate_pairs(tri[valid])]

@@ -31,6 +31,8 @@ from typing import Any
 
 import numpy as np
 
+from tetweave_codec.geometry.intersections import row_cross, row_dot
+
 TAUBIN_LAMBDA = 0.5
 TAUBIN_MU = -0.53
 MAX_STEPS = 3  # the header's two bits
@@ -104,25 +106,12 @@ def crease_edges(
     if not len(e) or not len(f):
         return np.zeros(len(e), dtype=bool)
     sides = edge_faces(f, e, len(v)) if sides is None else sides
-    u, w = v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]
-    # the spec's component formulas (formats/README.md, "Crossing faces"), spelled out rather than np.cross
-    normal = np.stack(
-        [
-            u[:, 1] * w[:, 2] - u[:, 2] * w[:, 1],
-            u[:, 2] * w[:, 0] - u[:, 0] * w[:, 2],
-            u[:, 0] * w[:, 1] - u[:, 1] * w[:, 0],
-        ],
-        axis=1,
-    )
+    # the spec's arithmetic (formats/README.md, "Crossing faces"): the crossing check's own row helpers
+    normal = row_cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
     found = (sides >= 0).all(axis=1)
     n1, n2 = normal[sides[:, 0]], normal[sides[:, 1]]
-    bound = CREASE_COS * np.sqrt(_dot(n1, n1)) * np.sqrt(_dot(n2, n2))
-    return found & (_dot(n1, n2) < bound)
-
-
-def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Row dot products (N,) of (N,3) arrays, x + y + z in that order (the spec's rounding)."""
-    return a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1] + a[:, 2] * b[:, 2]
+    bound = CREASE_COS * np.sqrt(row_dot(n1, n1)) * np.sqrt(row_dot(n2, n2))
+    return found & (row_dot(n1, n2) < bound)
 
 
 def crease_neighbours(

@@ -131,15 +131,23 @@ class FilterMap:
     """
 
     def __init__(
-        self, faces: Any, num_vertices: int, smoothing: int, subdivision: int, sharp: np.ndarray | None = None
+        self,
+        faces: Any,
+        num_vertices: int,
+        smoothing: int,
+        subdivision: int,
+        sharp: np.ndarray | None = None,
+        edges: np.ndarray | None = None,
     ):
         self.smoothing, self.subdivision = int(smoothing), int(subdivision)
         self.num_vertices = int(num_vertices)
         # the creases (E,) bool over `smoothing.mesh_edges(faces, V)` that the filter keeps (None: the plain
-        # filter), kept so that the fit can tell when they changed
+        # filter), kept so that the fit can tell when they changed; edges: that mesh_edges when the caller has it
         self.sharp = sharp
         # the factors in the order they apply (scipy CSR, float64) and the filtered faces (numpy int64)
-        self.matrices, self._faces_np = _factors(faces, self.num_vertices, self.smoothing, self.subdivision, sharp)
+        self.matrices, self._faces_np = _factors(
+            faces, self.num_vertices, self.smoothing, self.subdivision, sharp, edges
+        )
         self._by_kind: dict = {}
         self.faces_out = None  # set on first call, on the input's device
 
@@ -195,14 +203,15 @@ def _apply_indexed(vertices: Any, factors: list) -> Any:
     return v
 
 
-def _factors(faces: Any, n: int, smoothing: int, subdivision: int, sharp: np.ndarray | None = None):
+def _factors(faces: Any, n: int, smoothing: int, subdivision: int, sharp: np.ndarray | None = None, edges=None):
     """([CSR factors in the order they apply], faces after subdivision (numpy int64)); with `sharp` (E,) bool over
-    `mesh_edges(faces, n)`, the filter keeps those creases (as `filter_surface(..., creases=True)`)."""
+    `mesh_edges(faces, n)` (`edges` when given), the filter keeps those creases (as `filter_surface(...,
+    creases=True)`)."""
     import scipy.sparse as sps
 
     f = np.asarray(faces.cpu().numpy() if hasattr(faces, "cpu") else faces, dtype=np.int64)
     mats = []
-    e = mesh_edges(f, n) if len(f) else None
+    e = (mesh_edges(f, n) if edges is None else np.asarray(edges, dtype=np.int64)) if len(f) else None
     loop_creases = None
     if sharp is not None and len(f):
         loop_creases = sharp[e[:, 0] < e[:, 1]]
