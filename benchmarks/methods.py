@@ -72,7 +72,7 @@ class TetweaveMethod(Method):
     """tetweave: fit with `tetweave_codec.encoder.encode`, rebuild with `tetweave_codec.decoder.decode`.
 
     points: grid points during the fit; sh_degree 0..3, or None for the encoder's choice (`input_defaults`: 1,
-    none on inputs with sharp creases); quality/iters/device/seed as in `tetweave encode`.
+    none on CAD parts); quality/iters/device/seed as in `tetweave encode`.
     size: a target file size in bytes (rate control, `tetweave encode --size`) instead of a point count.
     layout: where the points come from, "fit", "grid" or "best" (`tetweave encode --layout`; best needs `size`;
     the curve and settings name every layout but the fit, whose names stay as they were).

@@ -214,8 +214,8 @@ def _command_line(p: dict) -> str:
     "sh_degrees",
     default="auto",
     callback=_degrees,
-    help="tetweave SH degrees, comma-separated, 0-3 or auto (the encoder's choice: 1, none on inputs with sharp "
-    "creases); every degree runs at every --points.",
+    help="tetweave SH degrees, comma-separated, 0-3 or auto (the encoder's choice: 1, none on CAD parts); every "
+    "degree runs at every --points.",
 )
 @click.option(
     "--layout",

@@ -93,7 +93,7 @@ def _progress_lines(every_s: float = PROGRESS_LINE_SECONDS):
     type=click.Choice(["auto", "none", "0", "1", "2", "3"]),
     default="auto",
     help="Degree of the directional distances: none stores only s; higher places vertices more freely; auto: 1, "
-    "none on inputs with sharp creases (CAD parts), where the coefficients cost more than they buy.",
+    "none on CAD parts (sharp creases bounding every face), where the coefficients cost more than they buy.",
 )
 @click.option(
     "--layout",
@@ -163,7 +163,7 @@ def _progress_lines(every_s: float = PROGRESS_LINE_SECONDS):
     type=click.IntRange(0, 3),
     default=None,
     help="v2: Taubin smoothing steps the decoder applies to the surface (the fit optimizes the smoothed surface; "
-    "0 = none).  [default: 1; 3 steps that keep the creases for inputs with sharp creases (CAD); 0 with "
+    "0 = none).  [default: 1; 3 steps that keep the creases for CAD parts (sharp creases bounding every face); 0 with "
     "--format-version 1]",
 )
 @click.option(
@@ -171,7 +171,7 @@ def _progress_lines(every_s: float = PROGRESS_LINE_SECONDS):
     type=click.IntRange(0, 2),
     default=None,
     help="v2: Loop subdivision levels the decoder applies after the smoothing (each makes 4x the faces; the fit "
-    "optimizes the subdivided surface; 0 = none).  [default: 1; 0 for inputs with sharp creases (CAD) and with "
+    "optimizes the subdivided surface; 0 = none).  [default: 1; 0 for CAD parts and with "
     "--format-version 1]",
 )
 @click.option(
@@ -179,7 +179,7 @@ def _progress_lines(every_s: float = PROGRESS_LINE_SECONDS):
     default=None,
     help="v2: the decoder's smoothing and subdivision keep the surface's creases (vertices on edges whose faces turn "
     "by more than 30 degrees move only along the crease, corners stay) or round them like the rest.  [default: "
-    "keep for inputs with sharp creases (CAD)]",
+    "keep for inputs with sharp creases]",
 )
 @device_option
 @click.option("--seed", type=int, default=0, help="Seed of every random choice: same seed, same bytes.")

@@ -58,6 +58,17 @@ def test_detect_cube_creases(cube):
     assert len(fe.detect_features(*cube, angle_deg=95.0).edges) == 0
 
 
+def test_crease_density_separates_polyhedra_from_curved_parts(cube):
+    # a cube: 12 edges of 1.8 over sqrt(6 x 1.8^2)
+    assert fe.crease_density(fe.detect_features(*cube), *cube) == pytest.approx(12 / np.sqrt(6), rel=1e-6)
+    # a cylinder as tall as it is wide: two rims of 2 pi r over sqrt(6 pi r^2), less the facets' rounding
+    cyl = _normalized(manifold3d.Manifold.cylinder(2.0, 1.0, 1.0, 96, True))
+    assert fe.crease_density(fe.detect_features(*cyl), *cyl) == pytest.approx(4 * np.pi / np.sqrt(6 * np.pi), rel=0.01)
+    sphere = trimesh.creation.icosphere(subdivisions=3)
+    flat = fe.detect_features(np.asarray(sphere.vertices), np.asarray(sphere.faces))
+    assert fe.crease_density(flat, sphere.vertices, sphere.faces) == 0.0
+
+
 def test_no_creases_on_smooth_shapes():
     sphere = trimesh.creation.icosphere(subdivisions=3, radius=0.8)
     feat = fe.detect_features(np.asarray(sphere.vertices), np.asarray(sphere.faces))

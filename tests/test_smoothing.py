@@ -212,8 +212,16 @@ def test_encoder_refuses_bad_smoothing():
 
 
 def test_input_defaults_keep_creases_and_drop_subdivision_and_sh_for_cad_parts_only():
-    from tetweave_codec.encoder import CREASED_SH_DEGREE, CREASED_SMOOTHING, DEFAULT_SH_DEGREE, input_defaults
+    from tetweave_codec.encoder import (
+        CAD_CREASE_DENSITY,
+        CREASED_SH_DEGREE,
+        CREASED_SMOOTHING,
+        DEFAULT_SH_DEGREE,
+        input_defaults,
+    )
     from tetweave_codec.fit.config import DEFAULT_SMOOTHING, DEFAULT_SUBDIVISION
+    from tetweave_codec.fit.features import crease_density, detect_features
+    from tetweave_codec.meshio import normalize
 
     cube = manifold3d.Manifold.cube([2, 1, 1], True).to_mesh()
     chosen = input_defaults(np.asarray(cube.vert_properties)[:, :3] * 50, np.asarray(cube.tri_verts))
@@ -222,6 +230,14 @@ def test_input_defaults_keep_creases_and_drop_subdivision_and_sh_for_cad_parts_o
     smooth = (DEFAULT_SMOOTHING, DEFAULT_SUBDIVISION, DEFAULT_SH_DEGREE, False)
     assert input_defaults(ball.vertices * 1e-3, ball.faces) == smooth
     assert input_defaults(ball.vertices, ball.faces) == (1, 1, 1, False)
+    # a sphere cut by a plane: one long crease around a curved surface, the smooth settings with the crease kept
+    cut = manifold3d.Manifold.sphere(1.0, 48) - manifold3d.Manifold.cube([4, 4, 4], True).translate([0, 0, 2.6])
+    mesh = cut.to_mesh()
+    v, f = np.asarray(mesh.vert_properties)[:, :3], np.asarray(mesh.tri_verts)
+    normalized = normalize(v)[0]
+    features = detect_features(normalized, f)
+    assert features.found and 0 < crease_density(features, normalized, f) < CAD_CREASE_DENSITY
+    assert input_defaults(v, f) == (DEFAULT_SMOOTHING, DEFAULT_SUBDIVISION, DEFAULT_SH_DEGREE, True) == (1, 1, 1, True)
 
 
 def test_encode_reports_the_sh_degree_it_chose():

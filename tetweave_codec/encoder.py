@@ -37,18 +37,31 @@ from tetweave_codec.geometry.triangles import face_areas
 
 DEFAULT_POINTS = 16384
 DEFAULT_SH_DEGREE = 1
-# SH degree of inputs with sharp creases (`input_defaults`): none. fandisk, bytes x Chamfer of rate-controlled
+# SH degree of CAD parts (`input_defaults`): none. fandisk, bytes x Chamfer of rate-controlled
 # files against degree 1 (benchmarks/results/creases.md, session 7): 10 KB 0.87-0.92 (three seeds), 20 / 40 KB
 # 0.97-0.99, 5 KB 0.85-1.10 (three seeds, noise); CSG parts at 1-2 KB median 0.93. On the smooth meshes degree 1
 # stays (igea 10 KB 1.075 without it, spot 0.978-1.000, stanford-bunny 0.978-1.014).
 CREASED_SH_DEGREE = -1
-# Taubin steps of inputs with sharp creases (`input_defaults`): three crease-preserving steps (the smoothing keeps the
+# Taubin steps of CAD parts (`input_defaults`): three crease-preserving steps (the smoothing keeps the
 # extracted surface's creases, geometry.smoothing.crease_neighbours; three is the most the header holds), fitted
 # through in the late stage only (FitConfig.main_filter); no subdivision (it raised the edge Chamfer 1.2-2.2x).
 # fandisk, bytes x Chamfer against no smoothing at 5 / 10 / 20 / 40 KB (one thread, the same session): 1 step 0.880
 # / 0.886 / 0.918 / 0.931, 2 steps 0.828 / 0.830 / 0.893 / 0.910, 3 steps 0.788 / 0.803 / 0.885 / 0.915, with the
 # edge Chamfer lower than without smoothing at every size (benchmarks/results/creases.md, session 14).
 CREASED_SMOOTHING = 3
+# Crease density (`fit.features.crease_density`: crease length / sqrt(area)) from which an input with sharp creases
+# is a CAD part and takes the settings above (`input_defaults`); below it, the smooth-mesh settings (one smoothing
+# step, one Loop level, SH degree 1) with the creases kept. Shapes whose every face is bounded by creases lie above
+# (a cube 4.90, a regular tetrahedron 4.56, boxes and prisms more; fandisk 8.83, the CSG parts of
+# benchmarks/creases.py 5.8-10.3), shapes whose creases bound curved faces and organic models with a few sharp
+# details below (a cylinder 2.89, a sphere cut by a plane 1.45, a capsule with a
+# flat end 1.14, beast 1.02, cheburashka 0.50). Bytes x Chamfer of --size files, smooth settings with creases kept
+# against the CAD settings, one thread, one run: the cut sphere 2 / 5 KB 0.94 / 0.94, the capsule 2 KB 0.86, the
+# cylinder 2 KB 0.89, cheburashka 10 KB 0.84, beast 0.93, edge Chamfer 0.93-1.10x; above it the CAD settings win on
+# fandisk (5 / 10 / 20 KB 1.15 / 1.04 / 1.46 with the smooth ones, edge Chamfer 1.4-3.1x), the cube and the fin
+# (1.03-1.18), not on three boxes (0.65-0.77): benchmarks/results/creases.md, session 15. 4.0 keeps a margin below
+# those shapes (cow, 4.49, stays with the CAD settings although it measured 0.92).
+CAD_CREASE_DENSITY = 4.0
 # Samples per mesh of the Chamfer distance in the summary: enough for ~1e-5 resolution in the normalized frame.
 SUMMARY_CHAMFER_SAMPLES = 100_000
 MAX_POINTS = 1 << 22
@@ -307,21 +320,28 @@ class InputDefaults(NamedTuple):
 
 
 def input_defaults(vertices: np.ndarray, faces: np.ndarray) -> InputDefaults:
-    """The settings `encode` picks for a mesh: (DEFAULT_SMOOTHING, DEFAULT_SUBDIVISION, DEFAULT_SH_DEGREE, no
-    creases kept), and (CREASED_SMOOTHING, 0, CREASED_SH_DEGREE, creases kept) when the input has sharp creases
-    (`fit.features.detect_features(...).found`: CAD parts). Why: the plain smoothing and subdivision round every
-    crease the fit reproduces (on CSG parts smoothing doubled the edge Chamfer distance at 1-2 KB,
-    benchmarks/results/smoothing.md), while on scans and smooth shapes they save bytes at equal error
-    (benchmarks/results/subdivision.md); crease-preserving smoothing saves CAD parts bytes without rounding their
-    edges, Loop subdivision even with crease rules still raised their edge Chamfer (see CREASED_SMOOTHING); the SH
-    coefficients cost CAD parts more than they buy (see CREASED_SH_DEGREE). vertices (V,3) in any frame (the
-    creases are looked for in the normalized frame, as the fit's start does)."""
-    from tetweave_codec.fit.features import detect_features
+    """The settings `encode` picks for a mesh. Without sharp creases (`fit.features.detect_features(...).found`):
+    (DEFAULT_SMOOTHING, DEFAULT_SUBDIVISION, DEFAULT_SH_DEGREE, no creases kept). CAD parts (sharp creases with a
+    crease density of at least CAD_CREASE_DENSITY): (CREASED_SMOOTHING, 0, CREASED_SH_DEGREE, creases kept). Other
+    inputs with sharp creases (curved faces between a few creases, organic models with sharp details): the smooth
+    settings with the creases kept. Why: the plain smoothing and subdivision round every crease the fit reproduces
+    (on CSG parts smoothing doubled the edge Chamfer distance at 1-2 KB, benchmarks/results/smoothing.md), while on
+    scans and smooth shapes they save bytes at equal error (benchmarks/results/subdivision.md); crease-preserving
+    smoothing saves CAD parts bytes without rounding their edges, Loop subdivision even with crease rules still
+    raised their edge Chamfer (see CREASED_SMOOTHING); the SH coefficients cost CAD parts more than they buy (see
+    CREASED_SH_DEGREE); where the creases bound only a small part of the surface, the smooth settings with the
+    creases kept win (see CAD_CREASE_DENSITY). vertices (V,3) in any frame (the creases are looked for in the
+    normalized frame, as the fit's start does)."""
+    from tetweave_codec.fit.features import crease_density, detect_features
     from tetweave_codec.meshio import normalize
 
-    if detect_features(normalize(vertices)[0], faces).found:
+    normalized = normalize(vertices)[0]
+    features = detect_features(normalized, faces)
+    if not features.found:
+        return InputDefaults(DEFAULT_SMOOTHING, DEFAULT_SUBDIVISION, DEFAULT_SH_DEGREE)
+    if crease_density(features, normalized, faces) >= CAD_CREASE_DENSITY:
         return InputDefaults(CREASED_SMOOTHING, 0, CREASED_SH_DEGREE, creases=True)
-    return InputDefaults(DEFAULT_SMOOTHING, DEFAULT_SUBDIVISION, DEFAULT_SH_DEGREE)
+    return InputDefaults(DEFAULT_SMOOTHING, DEFAULT_SUBDIVISION, DEFAULT_SH_DEGREE, creases=True)
 
 
 class Job:

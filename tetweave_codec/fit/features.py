@@ -75,6 +75,21 @@ class Features:
         return self.length >= MIN_CREASE_LENGTH
 
 
+def crease_density(features: Features, vertices: np.ndarray, faces: np.ndarray) -> float:
+    """Total crease length of `features` / sqrt(surface area) of the mesh vertices (V,3), faces (F,3) it was found on
+    (the same frame; `detect_features`' chain lengths are in the normalized frame's units, so use that one): a
+    count of how much of a surface its creases bound that does not depend on the mesh's size. Shapes whose every
+    face is bounded by creases lie near or above 4.5 (a cube 12 / sqrt(6) = 4.90, a regular tetrahedron or an
+    equilateral triangular prism 4.56); a cylinder as tall as it is wide 2.89 (its
+    two rims); 0 without creases or area."""
+    from tetweave_codec.geometry.triangles import face_areas
+
+    area = float(face_areas(np.asarray(vertices, dtype=np.float64), np.asarray(faces, dtype=np.int64)).sum())
+    if features.length <= 0.0 or not area > 0.0:
+        return 0.0
+    return float(features.length / math.sqrt(area))
+
+
 def unique_rows(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The distinct rows of rows (N,k) in lexicographic order (M,k), the index (N,) of each row among them and
     the count (M,) of each: ``np.unique(rows, axis=0, return_inverse=True, return_counts=True)``, 2-3x faster on
