@@ -49,18 +49,17 @@ CREASED_SH_DEGREE = -1
 # / 0.886 / 0.918 / 0.931, 2 steps 0.828 / 0.830 / 0.893 / 0.910, 3 steps 0.788 / 0.803 / 0.885 / 0.915, with the
 # edge Chamfer lower than without smoothing at every size (benchmarks/results/creases.md, session 14).
 CREASED_SMOOTHING = 3
-# Crease density (`fit.features.crease_density`: crease length / sqrt(area)) from which an input with sharp creases
-# is a CAD part and takes the settings above (`input_defaults`); below it, the smooth-mesh settings (one smoothing
-# step, one Loop level, SH degree 1) with the creases kept. Shapes whose every face is bounded by creases lie above
-# (a cube 4.90, a regular tetrahedron 4.56, boxes and prisms more; fandisk 8.83, the CSG parts of
-# benchmarks/creases.py 5.8-10.3), shapes whose creases bound curved faces and organic models with a few sharp
-# details below (a cylinder 2.89, a sphere cut by a plane 1.45, a capsule with a
-# flat end 1.14, beast 1.02, cheburashka 0.50). Bytes x Chamfer of --size files, smooth settings with creases kept
-# against the CAD settings, one thread, one run: the cut sphere 2 / 5 KB 0.94 / 0.94, the capsule 2 KB 0.86, the
-# cylinder 2 KB 0.89, cheburashka 10 KB 0.84, beast 0.93, edge Chamfer 0.93-1.10x; above it the CAD settings win on
-# fandisk (5 / 10 / 20 KB 1.15 / 1.04 / 1.46 with the smooth ones, edge Chamfer 1.4-3.1x), the cube and the fin
-# (1.03-1.18), not on three boxes (0.65-0.77): benchmarks/results/creases.md, session 15. 4.0 keeps a margin below
-# those shapes (cow, 4.49, stays with the CAD settings although it measured 0.92).
+# Crease density (`fit.features.crease_density`: crease length / sqrt(area)) from which an input with sharp creases is a
+# CAD part and takes the settings above (`input_defaults`); below it, the smooth-mesh settings (one smoothing step, one
+# Loop level, SH degree 1) with the creases kept. Shapes whose every face is bounded by creases lie above (a cube 4.90,
+# a regular tetrahedron 4.56, boxes and prisms more; fandisk 8.83, the CSG parts of benchmarks/creases.py 5.8-10.3),
+# shapes whose creases bound curved faces and organic models with a few sharp details below (a cylinder 2.89, a sphere
+# cut by a plane 1.45, a capsule with a flat end 1.14, beast 1.02, cheburashka 0.50). Bytes x Chamfer of --size files,
+# smooth settings with creases kept against the CAD settings, one thread, one run: the cut sphere 2 / 5 KB 0.94 / 0.94,
+# the capsule 2 KB 0.86, the cylinder 2 KB 0.89, cheburashka 10 KB 0.84, beast 0.93, edge Chamfer 0.93-1.10x; above it
+# the CAD settings win on fandisk (5 / 10 / 20 KB 1.15 / 1.04 / 1.46 with the smooth ones, edge Chamfer 1.4-3.1x), the
+# cube and the fin (1.03-1.18), not on three boxes (0.65-0.77): benchmarks/results/creases.md, session 15. 4.0 keeps a
+# margin below those shapes (cow, 4.49, stays with the CAD settings although it measured 0.92).
 CAD_CREASE_DENSITY = 4.0
 # Samples per mesh of the Chamfer distance in the summary: enough for ~1e-5 resolution in the normalized frame.
 SUMMARY_CHAMFER_SAMPLES = 100_000
