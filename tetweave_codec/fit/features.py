@@ -80,8 +80,8 @@ def crease_density(features: Features, vertices: np.ndarray, faces: np.ndarray) 
     (the same frame; `detect_features`' chain lengths are in the normalized frame's units, so use that one): a
     count of how much of a surface its creases bound that does not depend on the mesh's size. Shapes whose every
     face is bounded by creases lie near or above 4.5 (a cube 12 / sqrt(6) = 4.90, a regular tetrahedron or an
-    equilateral triangular prism 4.56); a cylinder as tall as it is wide 2.89 (its
-    two rims); 0 without creases or area."""
+    equilateral triangular prism 4.56); a cylinder as tall as it is wide 2.89 (its two rims); 0 without creases or
+    area."""
     from tetweave_codec.geometry.triangles import face_areas
 
     area = float(face_areas(np.asarray(vertices, dtype=np.float64), np.asarray(faces, dtype=np.int64)).sum())
