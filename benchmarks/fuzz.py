@@ -398,7 +398,7 @@ def classify_result(result) -> tuple[str, str]:
     """ "closed", "open", "empty" or "non_manifold" (with a detail) for a `decoder.DecodeResult`."""
     from dataclasses import replace
 
-    holes = getattr(result.container, "holes", None)
+    holes = result.container.holes
     if holes is None or not len(result.faces):
         return _classify_closed(result)
     outcome, detail = _classify_closed(replace(result, vertices=result.closed_vertices, faces=result.closed_faces))

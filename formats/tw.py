@@ -114,6 +114,11 @@ class TetWeaveFile:
         """Version 1 files have no filter whose creases to keep."""
         return False
 
+    @property
+    def holes(self) -> None:
+        """Version 1 files have no holes section (as a version-2 file without one)."""
+        return None
+
 
 def payload_size(num_points: int, sh_degree: int) -> int:
     """Raw payload size in bytes for N points and an SH degree: 2 * N * (4 + q)."""

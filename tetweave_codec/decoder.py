@@ -166,7 +166,7 @@ def decode_detailed(data: bytes, backend: str | None = None, clock=time.perf_cou
     )
     closed_v = ex.vertices * float(tw.scale) + tw.offset
     vertices, faces = closed_v, ex.faces
-    holes = getattr(tw, "holes", None)
+    holes = tw.holes
     if holes is not None and len(holes):
         t0 = clock()
         vertices, faces = open_holes(closed_v, ex.faces, ex.extracted_faces, holes, ex.children)

@@ -606,7 +606,7 @@ class Job:
 
 def _hole_faces(container) -> int:
     """Faces a file's holes section removes (0 without one, and in version 1)."""
-    holes = getattr(container, "holes", None)
+    holes = container.holes
     return 0 if holes is None else int(len(holes))
 
 
