@@ -14,6 +14,7 @@ from pathlib import Path
 
 import click
 
+from tetweave_codec.benchmarks.baselines import DECIMATE_BITS, DECIMATE_KEEP, DRACO_BITS, MLAB_BITS, MLAB_KEEP
 from tetweave_codec.benchmarks.methods import DECIMATE_DRACO, DRACO, FAMILIES, MLAB_DRACO, TETWEAVE
 from tetweave_codec.cli.batch import jobs_option, ray_option, split_ray
 from tetweave_codec.cli.common import (
@@ -27,6 +28,11 @@ from tetweave_codec.cli.common import (
 from tetweave_codec.errors import TetweaveError
 from tetweave_codec.geometry.sh import SH_DEGREE_MAX
 from tetweave_codec.meshio import write_bytes_atomic
+
+
+def _joined(values) -> str:
+    """A comma-separated default from one of the baselines' tuples (their one home)."""
+    return ",".join(str(v) for v in values)
 
 
 def _split(text: str) -> list[str]:
@@ -237,33 +243,33 @@ def _command_line(p: dict) -> str:
 @iters_option
 @click.option(
     "--draco-bits",
-    default="8,10,11,12,14,16",
+    default=_joined(DRACO_BITS),
     callback=_ints(1, 30),
     help="Draco position quantization bits, comma-separated.",
 )
 @click.option(
     "--decimate",
     "keep",
-    default="0.2,0.1,0.05,0.02",
+    default=_joined(DECIMATE_KEEP),
     callback=_fractions,
     help="decimate+draco: fractions of the faces kept (0.1 or 10%), comma-separated.",
 )
 @click.option(
     "--decimate-bits",
-    default="11,14",
+    default=_joined(DECIMATE_BITS),
     callback=_ints(1, 30),
     help="decimate+draco: Draco quantization bits after decimation, comma-separated.",
 )
 @click.option(
     "--mlab",
     "mlab_keep",
-    default="0.5,0.2,0.1,0.05,0.02,0.01,0.005",
+    default=_joined(MLAB_KEEP),
     callback=_fractions,
     help="mlab+draco (MeshLab quadric edge collapse, optimal placement): fractions of the faces kept.",
 )
 @click.option(
     "--mlab-bits",
-    default="9,10,11,12",
+    default=_joined(MLAB_BITS),
     callback=_ints(1, 30),
     help="mlab+draco: Draco quantization bits after decimation, comma-separated.",
 )
