@@ -383,6 +383,11 @@ def _save_figure(fig, path: str | Path) -> None:
     write_bytes_atomic(path, buf.getvalue())
 
 
+# Settings named on a curve of the rate-distortion plot, evenly spread along it (both ends included): the
+# MeshLab sweep has 54 settings per bit depth, whose names would cover the plot.
+LABELS_PER_CURVE = 8
+
+
 def plot_rate_distortion(rows: Sequence[dict], path: str | Path, title: str = "") -> bool:
     """Bytes against Chamfer distance, log-log, one curve per method curve; False if nothing to plot."""
     import matplotlib
@@ -407,8 +412,11 @@ def plot_rate_distortion(rows: Sequence[dict], path: str | Path, title: str = ""
         x = [_num(r["chamfer"]) for r in pts]
         y = [_num(r["bytes"]) for r in pts]
         style = ["-", "--", ":", "-."][dashes[family] % 4]
-        ax.plot(x, y, style, color=colour, marker=marker, label=label, markersize=5)
-        for r, xi, yi in zip(pts, x, y, strict=True):
+        ax.plot(x, y, style, color=colour, marker=marker, label=label, markersize=5 if len(pts) <= 20 else 3)
+        labelled = set(np.linspace(0, len(pts) - 1, min(len(pts), LABELS_PER_CURVE)).round().astype(int).tolist())
+        for i, (r, xi, yi) in enumerate(zip(pts, x, y, strict=True)):
+            if i not in labelled:
+                continue
             tag = r["setting"].replace(" pts", "").split(" sh")[0] if family == TETWEAVE else r["setting"]
             ax.annotate(tag, (xi, yi), textcoords="offset points", xytext=(4, 3), fontsize=6, color=colour)
     ax.set_xscale("log")
