@@ -413,10 +413,8 @@ def plot_rate_distortion(rows: Sequence[dict], path: str | Path, title: str = ""
         y = [_num(r["bytes"]) for r in pts]
         style = ["-", "--", ":", "-."][dashes[family] % 4]
         ax.plot(x, y, style, color=colour, marker=marker, label=label, markersize=5 if len(pts) <= 20 else 3)
-        labelled = set(np.linspace(0, len(pts) - 1, min(len(pts), LABELS_PER_CURVE)).round().astype(int).tolist())
-        for i, (r, xi, yi) in enumerate(zip(pts, x, y, strict=True)):
-            if i not in labelled:
-                continue
+        for i in np.unique(np.linspace(0, len(pts) - 1, min(len(pts), LABELS_PER_CURVE)).round().astype(int)):
+            r, xi, yi = pts[i], x[i], y[i]
             tag = r["setting"].replace(" pts", "").split(" sh")[0] if family == TETWEAVE else r["setting"]
             ax.annotate(tag, (xi, yi), textcoords="offset points", xytext=(4, 3), fontsize=6, color=colour)
     ax.set_xscale("log")

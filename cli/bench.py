@@ -31,8 +31,9 @@ from tetweave_codec.meshio import write_bytes_atomic
 
 
 def _joined(values) -> str:
-    """A comma-separated default from one of the baselines' tuples (their one home)."""
-    return ",".join(str(v) for v in values)
+    """Values as one comma-separated option value (floats in %g): the defaults built from the baselines' tuples,
+    and the regenerating command line of summary.md."""
+    return ",".join(f"{v:g}" if isinstance(v, float) else str(v) for v in values)
 
 
 def _split(text: str) -> list[str]:
@@ -155,17 +156,13 @@ def _write_files(result, folder: Path, say) -> None:
 def _command_line(p: dict) -> str:
     """The full `tetweave bench` command that regenerates a run, from the command's resolved parameters `p`
     (every option explicit, for summary.md)."""
-
-    def join(values) -> str:
-        return ",".join(f"{v:g}" if isinstance(v, float) else str(v) for v in values)
-
     methods = p["methods"]
     args = [str(p["mesh_dir"]), "--out", str(p["out_dir"]), "--methods", ",".join(methods)]
     if TETWEAVE in methods:
         args += [
             "--points",
-            join(p["points"]),
-            *(["--sizes", join(p["sizes"])] if p["sizes"] else []),
+            _joined(p["points"]),
+            *(["--sizes", _joined(p["sizes"])] if p["sizes"] else []),
             "--sh-degree",
             ",".join("auto" if d is None else str(d) for d in p["sh_degrees"]),
             *(["--layout", ",".join(p["layouts"])] if p["layouts"] != ["fit"] else []),
@@ -176,11 +173,11 @@ def _command_line(p: dict) -> str:
         args += ["--iters", str(p["iters"])] if p["iters"] else []
         args += ["--device", p["device"]]
     if DRACO in methods:
-        args += ["--draco-bits", join(p["draco_bits"])]
+        args += ["--draco-bits", _joined(p["draco_bits"])]
     if DECIMATE_DRACO in methods:
-        args += ["--decimate", join(p["keep"]), "--decimate-bits", join(p["decimate_bits"])]
+        args += ["--decimate", _joined(p["keep"]), "--decimate-bits", _joined(p["decimate_bits"])]
     if MLAB_DRACO in methods:
-        args += ["--mlab", join(p["mlab_keep"]), "--mlab-bits", join(p["mlab_bits"])]
+        args += ["--mlab", _joined(p["mlab_keep"]), "--mlab-bits", _joined(p["mlab_bits"])]
     args += ["--samples", str(p["samples"]), "--seed", str(p["seed"])]
     args += [] if p["pictures"] else ["--no-pictures"]
     args += ["--threads", str(p["threads"])] if p["threads"] else []
