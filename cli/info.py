@@ -26,7 +26,6 @@ def _v2_lines(file: Path, f, total: int, degree: str) -> list[tuple[str, str]]:
     steps = ", ".join(f"l={band}: {x:.6g}" for band, x in enumerate(f.c_band_steps)) or "none"
     predicted = "; s coded as prediction residuals" if f.flags & FLAG_S_PREDICTED else ""
     predicted += "; octree context-coded" if f.flags & FLAG_OCTREE_CONTEXTS else ""
-    predicted += "; quads split along their shorter diagonal" if f.diagonals else ""
     predicted += f"; {f.smoothing} Taubin smoothing step{'s' if f.smoothing > 1 else ''}" if f.smoothing else ""
     predicted += " keeping creases" if f.smoothing and f.creases else ""
     predicted += f"; {f.subdivision} Loop subdivision level{'s' if f.subdivision > 1 else ''}" if f.subdivision else ""

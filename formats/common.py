@@ -33,13 +33,9 @@ MAX_SUBDIVISION = 2
 FLAG_HOLES = 1 << 7
 KNOWN_FLAGS = FLAG_QHULL  # version 1
 # version 2, the position-bits byte (offset 12): b in its bits 0-4; bit 7 asks for crease-preserving smoothing
-# (geometry/smoothing.py, crease_neighbours); bit 5 is 0. The flags byte had no bit left; a decoder that
+# (geometry/smoothing.py, crease_neighbours); bits 5-6 are 0. The flags byte had no bit left; a decoder that
 # predates the bit reads b > 16 and rejects the file instead of smoothing its creases away.
 BITS_CREASES = 1 << 7
-# version 2, the position-bits byte, bit 6: marching tets split each quad along its shorter diagonal
-# (geometry.marching_tets.shorter_diagonals) instead of the table's. A decoder that predates the bit reads b > 16
-# and rejects the file.
-BITS_DIAGONALS = 1 << 6
 KNOWN_FLAGS_V2 = FLAG_QHULL | FLAG_S_PREDICTED | FLAG_OCTREE_CONTEXTS | FLAG_SMOOTHING | FLAG_SUBDIVISION | FLAG_HOLES
 # Largest normalized coordinate of version 1 (any finite float16); version 2's is the grid's, quantize.GRID_BOUND.
 COORDINATE_BOUND_V1 = float(np.finfo(np.float16).max)

@@ -115,11 +115,6 @@ class TetWeaveFile:
         return False
 
     @property
-    def diagonals(self) -> bool:
-        """Version 1 files split quads as marching tets' table does."""
-        return False
-
-    @property
     def holes(self) -> None:
         """Version 1 files have no holes section (as a version-2 file without one)."""
         return None

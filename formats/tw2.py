@@ -11,8 +11,7 @@ offset  size       type     field
                             bit 2: octree context-coded; bits 3-4: smoothing steps 0-3;
                             bits 5-6: subdivision levels 0-2; bit 7: holes section
 11      1          int8     SH degree d in -1..3
-12      1          uint8    bits 0-4: position bits b in 6..16; bit 5: 0; bit 6: quads split along their
-                            shorter diagonal; bit 7: crease-preserving smoothing
+12      1          uint8    bits 0-4: position bits b in 6..16; bit 7: crease-preserving smoothing; bits 5-6: 0
 13      4          uint32   N, number of points (<= MAX_POINTS)
 17      8          float64  scale    } original = normalized * scale + offset
 25      24         float64  offset x, y, z
@@ -42,7 +41,6 @@ from . import attributes, common, holes, octree
 from . import quantize as Q
 from .common import (
     BITS_CREASES,
-    BITS_DIAGONALS,
     CHECKSUM_SIZE,
     FLAG_HOLES,
     FLAG_S_PREDICTED,
@@ -89,8 +87,6 @@ class TetWeaveFileV2:
     Taubin smoothing steps of the decoded surface (`smoothing`), bits 5-6 = Loop subdivision levels after it
     (`subdivision`), bit 7 = a holes section (`holes`).
     creases: the smoothing keeps the creases of the extracted surface (bit 7 of the position-bits byte).
-    diagonals: marching tets split each quad along its shorter diagonal (bit 6 of the position-bits byte;
-    `geometry.marching_tets.shorter_diagonals`); what this encoder writes.
     holes: (K,) int64 strictly increasing face ranks the decoder removes (formats/holes.py), K >= 1, exactly when
     flags bit 7 is set; None (or empty) otherwise.
     sizes: byte size of each part of the file it was read from ("header", "positions", "s", "c",
@@ -112,7 +108,6 @@ class TetWeaveFileV2:
     sizes: dict | None = field(default=None, compare=False)
     holes: np.ndarray | None = None
     creases: bool = False
-    diagonals: bool = False
 
     version = VERSION
 
@@ -238,7 +233,7 @@ def pack_v2(f: TetWeaveFileV2) -> bytes:
         if n == 0:
             raise ValueError("a holes section needs points")
         sections += (holes.encode_holes(hole_ranks),)
-    bits_byte = bits | (BITS_CREASES if f.creases else 0) | (BITS_DIAGONALS if f.diagonals else 0)
+    bits_byte = bits | (BITS_CREASES if f.creases else 0)
     header = struct.pack(FIXED_FORMAT, MAGIC, VERSION, flags, degree, bits_byte, n, scale, *offset, s_step)
     header += struct.pack(f"<{degree + 1}f", *band_steps)
     header += struct.pack(f"<{len(sections)}I", *(len(x) for x in sections))
@@ -253,8 +248,7 @@ def unpack_v2(buf: bytes) -> TetWeaveFileV2:
     """Parse and validate a version-2 file (magic and version already checked). Raises ContainerError only."""
     require_size(buf, header_size(SH_DEGREE_NONE) + CHECKSUM_SIZE, "a version-2 header")
     (_, _, flags, degree, bits_byte, n, scale, ox, oy, oz, s_step) = struct.unpack_from(FIXED_FORMAT, buf, 0)
-    creases, diagonals = bool(bits_byte & BITS_CREASES), bool(bits_byte & BITS_DIAGONALS)
-    bits = bits_byte & ~(BITS_CREASES | BITS_DIAGONALS)
+    creases, bits = bool(bits_byte & BITS_CREASES), bits_byte & ~BITS_CREASES
     degree = read_sh_degree(degree)
     with_holes = bool(flags & FLAG_HOLES)
     hsize = header_size(degree, with_holes)
@@ -299,5 +293,5 @@ def unpack_v2(buf: bytes) -> TetWeaveFileV2:
     sizes = {"header": hsize, **dict(zip(names, section_sizes, strict=True)), "checksum": CHECKSUM_SIZE}
     return TetWeaveFileV2(
         cells, s_sym, c_sym, int(bits), float(s_step), tuple(float(x) for x in band_steps), degree,
-        scale, offset, flags, sizes, hole_ranks, creases, diagonals,
+        scale, offset, flags, sizes, hole_ranks, creases,
     )  # fmt: skip

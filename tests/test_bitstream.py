@@ -51,8 +51,7 @@ def shell_file(n=600, bits=9, seed=0, flags=FLAG_OCTREE_CONTEXTS | 2) -> TetWeav
 
 def assert_same(f: TetWeaveFileV2, g: TetWeaveFileV2):
     assert np.array_equal(f.cells, g.cells) and np.array_equal(f.s_sym, g.s_sym) and np.array_equal(f.c_sym, g.c_sym)
-    assert (f.position_bits, f.sh_degree, f.flags) == (g.position_bits, g.sh_degree, g.flags)
-    assert (f.creases, f.diagonals) == (g.creases, g.diagonals)
+    assert (f.position_bits, f.sh_degree, f.flags, f.creases) == (g.position_bits, g.sh_degree, g.flags, g.creases)
     assert f.s_step == g.s_step and tuple(f.c_band_steps) == tuple(g.c_band_steps)
     assert f.scale == g.scale and np.array_equal(f.offset, g.offset)
 
@@ -231,7 +230,7 @@ def v2_files(draw):
     f = TetWeaveFileV2(
         cells[perm], s_sym[perm], c_sym[perm], bits, float(np.float32(draw(st.floats(1e-6, 10)))), steps,
         degree, draw(st.floats(1e-6, 1e6)), rng.normal(size=3), draw(st.integers(0, 7)),
-        creases=draw(st.booleans()), diagonals=draw(st.booleans()),
+        creases=draw(st.booleans()),
     )  # fmt: skip
     return f, perm
 
@@ -246,7 +245,7 @@ def test_round_trip_of_symbols_is_exact(case):
     order = np.argsort(perm)  # back to canonical order
     expected = TetWeaveFileV2(
         f.cells[order], f.s_sym[order], f.c_sym[order], f.position_bits, f.s_step, f.c_band_steps, f.sh_degree,
-        f.scale, f.offset, f.flags, creases=f.creases, diagonals=f.diagonals,
+        f.scale, f.offset, f.flags, creases=f.creases,
     )  # fmt: skip
     assert_same(g, expected)
     assert_valid(g)
@@ -543,9 +542,9 @@ def test_n_above_the_format_limit_is_rejected_before_decoding():
         (11, "<b", 4, "SH degree"),
         (12, "<B", 5, "position bits"),
         (12, "<B", 17, "position bits"),
-        (12, "<B", 9 | 1 << 5, "position bits"),  # bit 5 of the position-bits byte is 0
+        (12, "<B", 9 | 1 << 5, "position bits"),  # bits 5-6 of the position-bits byte are 0
+        (12, "<B", 9 | 1 << 6, "position bits"),
         (12, "<B", 17 | 1 << 7, "position bits"),  # the creases bit does not make b 17 valid
-        (12, "<B", 17 | 1 << 6, "position bits"),  # nor the diagonals bit
         (17, "<d", 0.0, "scale"),
         (17, "<d", float("inf"), "scale"),
         (17, "<d", 1.7e308, "float64 range"),  # 1.2 x 1.7e308 overflows: decoded vertices would be infinite
@@ -621,42 +620,6 @@ def test_decode_and_info_read_version_2(tmp_path):
     assert out.exit_code == 0, out.output
     for word in ("version 2", "10 bits/axis", "s step 0.001", "positions", "bits/point", "checksum    4"):
         assert word in out.output
-
-
-def test_diagonals_bit_is_bit_6_of_the_position_bits_byte():
-    """Shorter quad diagonals are bit 6 of byte 12 (formats/README.md, "Quad diagonals"), beside the creases bit."""
-    f = random_file(n=40, degree=1, bits=9)
-    plain = pack_v2(f)
-    assert not tw.unpack(plain).diagonals
-    marked = pack_v2(replace(f, diagonals=True, creases=True))
-    assert marked[12] == 9 | 1 << 6 | 1 << 7
-    assert marked[:12] == plain[:12] and marked[13:-4] == plain[13:-4]
-    g = tw.unpack(marked)
-    assert g.diagonals and g.creases and g.position_bits == 9
-    assert_same(g, replace(tw.unpack(plain), diagonals=True, creases=True))
-
-
-def test_decoder_splits_quads_as_the_diagonals_bit_says():
-    """The same points, s and c decode to the same vertices; with the bit, exactly the quads whose other diagonal
-    is shorter are split the other way (before the filter, on every later step)."""
-    from tetweave_codec.decoder import decode_detailed
-    from tetweave_codec.geometry.marching_tets import quad_starts, shorter_diagonals
-
-    f = random_file(n=300, degree=1, bits=8)
-    table = decode_detailed(pack_v2(f))
-    split = decode_detailed(pack_v2(replace(f, diagonals=True)))
-    assert np.array_equal(table.vertices, split.vertices)  # no smoothing: the same vertices
-    q = quad_starts(_face_tets(f))
-    assert np.array_equal(split.faces, shorter_diagonals(table.vertices, table.faces, q))
-    assert not np.array_equal(split.faces, table.faces)
-
-
-def _face_tets(f):
-    from tetweave_codec.geometry.delaunay import tetrahedralize
-    from tetweave_codec.geometry.marching_tets import marching_tets_numpy
-
-    tz = tetrahedralize(f.points, f.backend)
-    return marching_tets_numpy(f.points, tz.tets, f.s, f.c, tz.hull_faces).face_tets
 
 
 def test_creases_bit_is_bit_7_of_the_position_bits_byte():

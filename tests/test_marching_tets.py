@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import time
-
 import manifold3d
 import numpy as np
 import pytest
@@ -17,8 +15,6 @@ from tetweave_codec.geometry.marching_tets import (
     TRIANGLE_TABLE,
     marching_tets,
     marching_tets_numpy,
-    quad_starts,
-    shorter_diagonals,
 )
 from tetweave_codec.geometry.sh import num_coeffs
 
@@ -521,111 +517,3 @@ def test_cached_topology_gives_the_same_mesh_and_follows_sign_changes():
     other = triangulate(pts[::-1].copy(), "tetgen")
     out = extract(p, torch.tensor(s0), None, other, cache)
     assert torch.equal(out.faces, extract(p, torch.tensor(s0), None, other).faces)
-
-
-# -----------------------------------------------------------------------------------------------------------
-# quad diagonals (`.tw` v2, bit 6 of the position-bits byte)
-
-
-def _quads_of(res):
-    """(a, b, c, d) of each quad of a marching-tets result with the table's split (a, b, c), (a, c, d)."""
-    q = quad_starts(res.face_tets)
-    f = res.faces
-    return q, f[q, 0], f[q, 1], f[q, 2], f[q + 1, 2]
-
-
-def test_table_quads_are_consecutive_face_pairs_of_one_tet():
-    """Every 2-2 tet gives exactly two consecutive faces (a, b, c), (a, c, d): the shape `shorter_diagonals` reads."""
-    pts, s, tz = sphere_setup(400, seed=3)
-    res = marching_tets_numpy(pts, tz.tets, s, None, tz.hull_faces)
-    q, a, b, c, d = _quads_of(res)
-    code = (s[tz.tets] < 0).astype(np.int64) @ np.array([1, 2, 4, 8])
-    two_two = np.isin(code, [3, 5, 6, 9, 10, 12])
-    assert len(q) == int(two_two.sum()) > 50
-    assert np.array_equal(np.sort(res.face_tets[q]), np.flatnonzero(two_two))
-    assert np.array_equal(res.faces[q + 1, 0], a) and np.array_equal(res.faces[q + 1, 1], c)
-
-
-@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-@given(
-    points=st.lists(st.tuples(coords, coords, coords), min_size=0, max_size=40),
-    signs=st.lists(st.sampled_from([-1.0, -0.25, 0.0, 0.5, 1.0]), min_size=40, max_size=40),
-    jitter=st.booleans(),
-    backend=st.sampled_from(available_backends()),
-    sh=st.booleans(),
-)
-def test_shorter_diagonals_keep_the_surface_closed_and_split_each_quad_along_its_shorter_diagonal(
-    points, signs, jitter, backend, sh
-):
-    pts = np.array(points, dtype=np.float64).reshape(-1, 3)
-    if jitter:
-        pts = pts + np.random.default_rng(len(pts)).uniform(-0.3, 0.3, pts.shape)
-    s = np.array(signs[: len(pts)])
-    c = np.random.default_rng(0).normal(size=(len(pts), 4)) if sh else None
-    tz = tetrahedralize(pts, backend)
-    res = marching_tets_numpy(pts, tz.tets, s, c, tz.hull_faces)
-    q, a, b, c_, d = _quads_of(res)
-    got = shorter_diagonals(res.vertices, res.faces, q)
-    assert_closed_manifold(res.vertices, got)
-    if len(got):
-        assert signed_volume(res.vertices, got) >= -1e-9
-        if not sh:  # without SH coefficients a quad is planar: either split encloses the same volume
-            assert signed_volume(res.vertices, got) == pytest.approx(signed_volume(res.vertices, res.faces), abs=1e-9)
-    others = np.setdiff1d(np.arange(len(res.faces)), np.concatenate([q, q + 1]))
-    assert np.array_equal(got[others], res.faces[others])  # triangles and hull caps untouched
-    v = res.vertices
-    ac = ((v[a] - v[c_]) ** 2).sum(1)
-    bd = ((v[b] - v[d]) ** 2).sum(1)
-    flip = bd < ac
-    split = np.where(flip[:, None], np.stack([a, b, d], 1), np.stack([a, b, c_], 1))
-    assert np.array_equal(got[q], split)
-    assert np.array_equal(got[q + 1], np.where(flip[:, None], np.stack([b, c_, d], 1), np.stack([a, c_, d], 1)))
-    # torch gives the same faces
-    quads_t = quad_starts(torch.from_numpy(res.face_tets))
-    t = shorter_diagonals(torch.from_numpy(v), torch.from_numpy(res.faces), quads_t)
-    assert np.array_equal(t.numpy(), got)
-
-
-def test_shorter_diagonals_re_split_about_half_of_a_spheres_quads_and_keep_ties():
-    pts, s, tz = sphere_setup(400, seed=1)
-    res = marching_tets_numpy(pts, tz.tets, s, None, tz.hull_faces)
-    q = quad_starts(res.face_tets)
-    got = shorter_diagonals(res.vertices, res.faces, q)
-    changed = (got[q] != res.faces[q]).any(1)
-    assert 0.3 < changed.mean() < 0.7
-    # a square quad (equal diagonals) keeps the table's split
-    v = np.array([[0.0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]])
-    f = np.array([[0, 1, 2], [0, 2, 3]])
-    assert np.array_equal(shorter_diagonals(v, f, np.array([0])), f)
-    v[2] = [1.2, 1.2, 0]  # a-c longer: re-split along b-d, same orientation
-    assert np.array_equal(shorter_diagonals(v, f, np.array([0])), [[0, 1, 3], [1, 2, 3]])
-
-
-def test_extract_with_diagonals_is_the_decoders_surface():
-    """The fit's extraction (torch, filter cached per split) has the decoder's faces, before and after its filter,
-    and follows the split when the vertices move (within SPLIT_REFRESH_CALLS calls). (The vertices after the filter
-    differ where the decoder puts back crossing faces, which the fit leaves out.)"""
-    from tetweave_codec.decoder import _extract
-    from tetweave_codec.fit.step import SPLIT_REFRESH_CALLS, TopologyCache, extract, triangulate
-
-    rng = np.random.default_rng(7)
-    pts = rng.uniform(-1, 1, (400, 3))
-    grid = triangulate(pts, "tetgen")
-    p = torch.tensor(pts)
-    cache = TopologyCache()
-    base = np.linalg.norm(pts, axis=1) - 0.6
-    splits = []
-    for factor in (np.ones(len(pts)), rng.uniform(0.7, 1.4, len(pts))):  # same signs: the cached topology
-        s_np = base * factor
-        for _ in range(SPLIT_REFRESH_CALLS):
-            got, mt = extract(
-                p, torch.tensor(s_np), None, grid, cache, 1, 1, with_base=True, diagonals=True,
-                split_every=SPLIT_REFRESH_CALLS,
-            )  # fmt: skip
-        ex = _extract(pts, s_np, None, -1, "tetgen", {}, time.perf_counter, 1, 1, False, True)
-        assert np.array_equal(mt.faces.numpy(), ex.extracted_faces)
-        assert np.array_equal(got.faces.numpy(), ex.faces)
-        table = _extract(pts, s_np, None, -1, "tetgen", {}, time.perf_counter, 1, 1, False, False)
-        assert not np.array_equal(table.extracted_faces, ex.extracted_faces)
-        splits.append(ex.extracted_faces)
-    assert not np.array_equal(*splits)  # the second s moved vertices enough to re-split some quads

@@ -269,7 +269,7 @@ def test_encoder_keeps_the_smoothing_alone_when_the_decoder_drops_the_subdivided
     c = d.container
 
     def error(smoothing):
-        v, f = decoder.mesh_from_points(c.points, c.s, c.c, c.sh_degree, d.backend, smoothing, diagonals=c.diagonals)
+        v, f = decoder.mesh_from_points(c.points, c.s, c.c, c.sh_degree, d.backend, smoothing)
         v = v * c.scale + c.offset
         return chamfer_distance(m.vertices, m.faces, v, f, n_samples=SUMMARY_CHAMFER_SAMPLES, seed=0)
 

@@ -24,7 +24,7 @@ import numpy as np
 
 from tetweave_codec.geometry.delaunay import available_backends, tetrahedralize
 from tetweave_codec.geometry.holes import open_holes
-from tetweave_codec.geometry.marching_tets import marching_tets_numpy, quad_starts, shorter_diagonals
+from tetweave_codec.geometry.marching_tets import marching_tets_numpy
 from tetweave_codec.geometry.sh import check_degree, num_coeffs
 from tetweave_codec.geometry.surface_filter import filter_surface
 
@@ -73,7 +73,6 @@ def mesh_from_points(
     smoothing: int = 0,
     subdivision: int = 0,
     creases: bool = False,
-    diagonals: bool = False,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Extract the TetWeave surface of a point cloud (in the frame of `points`).
 
@@ -86,13 +85,10 @@ def mesh_from_points(
         smoothing: Taubin steps 0-3 (the container's flags bits 3-4).
         subdivision: Loop levels 0-2 after the smoothing (flags bits 5-6).
         creases: crease-preserving smoothing (bit 7 of the position-bits byte).
-        diagonals: quads split along their shorter diagonal (bit 6 of the position-bits byte).
     Returns:
         vertices (V, 3) float64, faces (F, 3) int64 (outward; both empty when s has one sign only).
     """
-    result = _extract(
-        points, s, c, sh_degree, backend, {}, time.perf_counter, smoothing, subdivision, creases, diagonals
-    )
+    result = _extract(points, s, c, sh_degree, backend, {}, time.perf_counter, smoothing, subdivision, creases)
     return result.vertices, result.faces
 
 
@@ -105,9 +101,7 @@ class _Extracted(NamedTuple):
     children: int  # faces per extracted face: 4^L, or 1 when the filter was dropped
 
 
-def _extract(
-    points, s, c, sh_degree, backend, seconds, clock, smoothing=0, subdivision=0, creases=False, diagonals=False
-) -> _Extracted:
+def _extract(points, s, c, sh_degree, backend, seconds, clock, smoothing=0, subdivision=0, creases=False) -> _Extracted:
     """The closed surface and how it was made, timing each stage into `seconds`."""
     check_degree(sh_degree)
     pts = np.asarray(points, dtype=np.float64)
@@ -125,14 +119,13 @@ def _extract(
     tz = tetrahedralize(pts, backend)
     t1 = clock()
     mt = marching_tets_numpy(pts, tz.tets, s, coeffs, tz.hull_faces)
-    faces = shorter_diagonals(mt.vertices, mt.faces, quad_starts(mt.face_tets)) if diagonals else mt.faces
     t2 = clock()
-    out = filter_surface(mt.vertices, faces, smoothing, subdivision, creases)
+    out = filter_surface(mt.vertices, mt.faces, smoothing, subdivision, creases)
     seconds["delaunay"] = t1 - t0
     seconds["marching_tets"] = t2 - t1
     seconds["smoothing"] = clock() - t2
     children = 1 if out.gave_up else 4**subdivision
-    return _Extracted(out.vertices, out.faces, tz, out.restored, faces, children)
+    return _Extracted(out.vertices, out.faces, tz, out.restored, mt.faces, children)
 
 
 def decode(data: bytes, backend: str | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -169,17 +162,7 @@ def decode_detailed(data: bytes, backend: str | None = None, clock=time.perf_cou
             )
             backend = available_backends()[0]
     ex = _extract(
-        tw.points,
-        tw.s,
-        tw.c,
-        tw.sh_degree,
-        backend,
-        seconds,
-        clock,
-        tw.smoothing,
-        tw.subdivision,
-        tw.creases,
-        tw.diagonals,
+        tw.points, tw.s, tw.c, tw.sh_degree, backend, seconds, clock, tw.smoothing, tw.subdivision, tw.creases
     )
     closed_v = ex.vertices * float(tw.scale) + tw.offset
     vertices, faces = closed_v, ex.faces

@@ -650,7 +650,6 @@ def pack_result(result: FitResult, scale: float, offset: np.ndarray) -> bytes:
             s_step=q.s_step,
             c_band_steps=steps,
             creases=bool(result.creases and (result.smoothing or result.subdivision)),
-            diagonals=True,  # FitConfig.diagonals: every v2 fit splits quads along their shorter diagonal
             **shared,
         )
     )

@@ -204,17 +204,6 @@ class FitConfig:
     # the late stage alone 0.88 / 0.89 / 0.92 at less CPU (benchmarks/results/creases.md, session 14).
     main_filter: bool = True
 
-    @property
-    def diagonals(self) -> bool:
-        """Whether marching tets split each quad along its shorter diagonal: in every container-v2 file this encoder
-        writes (position-bits byte bit 6, `geometry.marching_tets.shorter_diagonals`), so in every v2 fit.
-
-        Zero bytes, and the decoder's surface is as closed and manifold either way; the filter (smoothing, Loop)
-        works on better-shaped triangles. Rate-controlled files, one thread, seed 0, bytes x Chamfer against the
-        table's split (benchmarks/results/rdo.md, session 19): spot 10 / 20 KB 0.952 / 0.966, igea 5 / 10 KB
-        0.995 / 0.985, stanford-bunny 10 / 20 KB 0.973 / 1.041."""
-        return self.quantization is not None
-
     def stage_filter(self, main: bool) -> tuple[int, int]:
         """(Taubin steps, Loop levels) a stage fits through: the decoder's, except in a main stage without
         `main_filter`."""

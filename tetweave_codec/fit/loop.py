@@ -103,7 +103,7 @@ def _importance(params: Params, grid: Grid, ctx: FitContext) -> tuple[Tensor, Te
         smoothing, subdivision = ctx.config.stage_filter(main=True)
         mt = extract(
             params.points, params.s, params.c, grid, smoothing=smoothing, subdivision=subdivision,
-            creases=ctx.config.creases, diagonals=ctx.config.diagonals,
+            creases=ctx.config.creases,
         )  # fmt: skip
         if mt.faces.shape[0] == 0:
             return None

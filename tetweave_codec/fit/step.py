@@ -20,26 +20,12 @@ from tetweave_codec.fit.optim import Adam
 from tetweave_codec.fit.surface_loss import SurfaceTarget
 from tetweave_codec.fit.targets import Targets
 from tetweave_codec.geometry.delaunay import tetrahedralize
-from tetweave_codec.geometry.marching_tets import (
-    Topology,
-    marching_tets,
-    marching_tets_topology,
-    quad_starts,
-    shorter_diagonals,
-)
+from tetweave_codec.geometry.marching_tets import Topology, marching_tets, marching_tets_topology
 from tetweave_codec.geometry.smoothing import crease_edges, edge_faces, mesh_edges
 from tetweave_codec.geometry.surface_filter import FilterMap
 from tetweave_codec.render import render_maps
 
 ProgressFn = Callable[[str, int, int, dict], None]
-
-# The main stage takes each quad's split again every this many iterations (and whenever the topology changes); the
-# late stage, which settles the file's s and c, at every one. Every new split rebuilds the decoder's filter and the
-# surface term's mesh tree, and the vertices move a little per iteration, so some quad changes its shorter
-# diagonal at nearly every call: a new split at every call costs +35-50 % CPU (spot and igea at 10 KB, one thread);
-# every 4 calls in the main stage +10-15 %, but it kept only about half the gain (benchmarks/results/rdo.md,
-# session 19).
-SPLIT_REFRESH_CALLS = 1
 
 
 def noop_progress(stage: str, done: int, total: int, info: dict) -> None:
@@ -138,8 +124,6 @@ def extract(
     subdivision: int = 0,
     with_base: bool = False,
     creases: bool = False,
-    diagonals: bool = False,
-    split_every: int = 1,
 ):
     """The mesh exactly as the decoder extracts it (hull caps included, `smoothing` Taubin steps, crease-preserving
     with `creases`, then `subdivision` Loop levels), differentiable. The decoder's putting back of crossing faces is
@@ -148,9 +132,7 @@ def extract(
     With a `cache`, the marching-tets topology of the previous call, and the filter built for it, are reused when
     the grid and every sign of s are the same (the result is identical either way). A subdivided mesh's
     face_tets repeat each face's tet for its 4^L faces. with_base: return (mesh, marching tets' own mesh before
-    the filter). diagonals: quads split along their shorter diagonal (`marching_tets.shorter_diagonals`, as the
-    decoder does for container-v2 files). The split follows the vertices: with a `cache` it is taken again when
-    the topology changes and every `split_every` calls, and the filter rebuilt when it changed."""
+    the filter)."""
     if cache is None:
         cache = TopologyCache()
     with torch.no_grad():
@@ -158,21 +140,8 @@ def extract(
         if cache.tets is not grid.tets or cache.inside is None or not torch.equal(cache.inside, inside):
             cache.tets, cache.inside = grid.tets, inside
             cache.topology = marching_tets_topology(grid.tets, inside, grid.hull)
-            cache.filter = cache.edges = cache.faces = None
-            cache.quads = quad_starts(cache.topology.face_tets) if diagonals else None
+            cache.filter = cache.edges = None
     mt = marching_tets(points, grid.tets, s, c, hull_faces=grid.hull, topology=cache.topology)
-    if diagonals:
-        cache.split_age += 1
-        if cache.faces is None or cache.split_age >= split_every:
-            cache.split_age = 0
-            if cache.quads is None:
-                cache.quads = quad_starts(cache.topology.face_tets)
-            with torch.no_grad():
-                faces = shorter_diagonals(mt.vertices.detach(), cache.topology.faces, cache.quads)
-            if cache.faces is None or not torch.equal(cache.faces, faces):
-                cache.faces = faces
-                cache.filter = cache.edges = None
-        mt = mt._replace(faces=cache.faces)
     out = mt
     if (smoothing > 0 or subdivision > 0) and mt.faces.shape[0] > 0:
         f = cache.filter
@@ -209,9 +178,6 @@ class TopologyCache:
     filter: FilterMap | None = None  # the decoder's filter of the topology's faces, built on first use
     edges: np.ndarray | None = None  # the topology's directed edges (E,2), for crease-preserving smoothing
     sides: np.ndarray | None = None  # and the two faces of each (`smoothing.edge_faces`)
-    quads: Tensor | None = None  # the topology's quads (`marching_tets.quad_starts`), with `diagonals`
-    faces: Tensor | None = None  # the topology's faces with each quad's shorter diagonal, with `diagonals`
-    split_age: int = 0  # calls since `faces` was split
 
 
 def regularized_loss(
@@ -234,10 +200,7 @@ def regularized_loss(
     weights = ctx.config.weights
     cfg = ctx.config
     smoothing, subdivision = cfg.stage_filter(main=with_grid_terms)
-    split_every = SPLIT_REFRESH_CALLS if with_grid_terms else 1
-    mt, base = extract(
-        points, s, c, grid, ctx.topology, smoothing, subdivision, True, cfg.creases, cfg.diagonals, split_every
-    )
+    mt, base = extract(points, s, c, grid, ctx.topology, smoothing, subdivision, True, cfg.creases)
     parts: dict[str, float] = {}
     total = losses.sign_loss(s, mt.edges) * weights.sign
     parts["sign"] = float(total.detach())

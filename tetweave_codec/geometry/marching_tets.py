@@ -30,12 +30,6 @@ Two implementations share the tables and the vertex ordering (vertices sorted by
   (geometry/_mt_native.c, built by setup.py when a C compiler is there) with the same output; the numpy code here
   stays the reference and the fallback (extension absent, `NATIVE` False or TETWEAVE_NATIVE=0).
 
-Quads (the six cases with two inside and two outside corners) come out of TRIANGLE_TABLE as two consecutive faces
-of one tet, (a, b, c) then (a, c, d): the quad a b c d split along a-c, whatever its shape. `shorter_diagonals`
-splits each along its shorter diagonal instead (what `.tw` files with bit 6 of the position-bits byte ask for).
-Neither diagonal is shared with another tet (the two are opposite edges' vertices, and only this tet holds both
-edges), so either split keeps the surface closed, 2-manifold and inside its tets.
-
 The output is a closed (with ``hull_faces``) 2-manifold only if the tets form a proper tetrahedralization (each
 triangle shared by at most two tets, in opposite orientations; `delaunay` guarantees it). `marching_tets_numpy`
 checks its own output -- every directed edge used once, and with ``hull_faces`` by exactly one opposite edge --
@@ -322,41 +316,6 @@ def _topology_numpy(tets: np.ndarray, inside: np.ndarray, n: int) -> tuple[np.nd
     faces = slot.ravel()[(np.arange(len(slot), dtype=np.int64) * 6)[:, None, None] + tri][has]
     face_tets = np.broadcast_to(tet_idx[:, None], has.shape)[has]
     return keys, faces, face_tets
-
-
-def quad_starts(face_tets):
-    """Index q of the first face of each quad: faces q and q + 1 come from the same tet (not a hull cap).
-
-    face_tets (F,) int64 from marching tets (numpy array or torch tensor); returns (Q,) of the same kind."""
-    if type(face_tets).__module__.startswith("torch"):
-        import torch
-
-        return torch.nonzero((face_tets[:-1] == face_tets[1:]) & (face_tets[:-1] >= 0)).squeeze(1)
-    face_tets = np.asarray(face_tets)
-    return np.flatnonzero((face_tets[:-1] == face_tets[1:]) & (face_tets[:-1] >= 0))
-
-
-def shorter_diagonals(vertices, faces, quads):
-    """Marching tets' faces with every quad split along its shorter diagonal (numpy arrays or torch tensors).
-
-    vertices (V,3) float, faces (F,3) int64, quads (Q,) from `quad_starts`. The quad of faces (a, b, c), (a, c, d)
-    becomes (a, b, d), (b, c, d) -- same orientation -- exactly when |b - d|^2 < |a - c|^2, each squared length
-    summed as dx*dx + dy*dy + dz*dz in that order (binary64 in the decoder: a tie keeps the table's split).
-    Returns new faces (F,3); the input is not modified.
-    """
-    a, b, c = faces[quads, 0], faces[quads, 1], faces[quads, 2]
-    d = faces[quads + 1, 2]
-    ac, bd = vertices[a] - vertices[c], vertices[b] - vertices[d]
-    ac2 = ac[:, 0] * ac[:, 0] + ac[:, 1] * ac[:, 1] + ac[:, 2] * ac[:, 2]
-    bd2 = bd[:, 0] * bd[:, 0] + bd[:, 1] * bd[:, 1] + bd[:, 2] * bd[:, 2]
-    flip = bd2 < ac2
-    out = faces.clone() if type(faces).__module__.startswith("torch") else faces.copy()
-    first, second = quads[flip], quads[flip] + 1
-    out[first, 2] = d[flip]
-    out[second, 0] = b[flip]
-    out[second, 1] = c[flip]
-    out[second, 2] = d[flip]
-    return out
 
 
 def check_manifold(faces: np.ndarray, num_vertices: int, closed: bool = True) -> None:
