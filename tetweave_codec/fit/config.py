@@ -57,8 +57,9 @@ class Weights:
 
     The image terms are off. With the exact 3-D term present, renders at CPU-affordable resolutions mostly add
     pixel-scale noise: spot at 8K points (120 + 60 iterations) reached Chamfer 7.3e-4 with the paper's image
-    weights, 5.1e-4 with a tenth of them and 4.3e-4 without them. (The targets are still rendered: the
-    error-driven resampling compares normal maps.)
+    weights, 5.1e-4 with a tenth of them and 4.3e-4 without them. With them off and the 3-D term on, the input is
+    not rendered at all: the error-driven resampling measures the distance to the input instead of comparing
+    normal maps (fit.loop._importance; `uses_images`).
     """
 
     # Off: the renders cost a quarter of the fit's CPU time, and with the 3-D term sampling the mesh by area
