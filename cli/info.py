@@ -52,6 +52,22 @@ def _v2_lines(file: Path, f, total: int, degree: str) -> list[tuple[str, str]]:
     return lines
 
 
+def _level_faces_line(data: bytes, f) -> str:
+    """Faces of `tetweave decode --level control / smoothed / full` (Delaunay and marching tets only)."""
+    from tetweave_codec.decoder import level_faces
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # a missing backend: `decode` and --mesh say so
+        counts = level_faces(data)
+    smoothing, levels = getattr(f, "smoothing", 0), getattr(f, "subdivision", 0)
+    full = "refused (too many subdivided faces)" if counts["full"] is None else f"{counts['full']:,}"
+    parts = [f"control {counts['control']:,}"]
+    if smoothing:
+        parts.append(f"smoothed {counts['smoothed']:,}")
+    parts.append(f"full {full}" + (f" (4^{levels} per control face)" if levels else " (no subdivision)"))
+    return ", ".join(parts) + " (tetweave decode --level)"
+
+
 @click.command(context_settings={"show_default": True})
 @click.argument("file", type=click.Path(path_type=Path))
 @click.option("--mesh", is_flag=True, help="Also decode FILE and report the mesh: counts and exact bounding box.")
@@ -88,6 +104,7 @@ def info(file: Path, mesh: bool) -> None:
     if n:
         pts = f.points.astype(np.float64) * f.scale + f.offset
         lines.append(("points box", _box(pts.min(0), pts.max(0))))
+    lines.append(("faces", _level_faces_line(data, f)))
     if mesh:
         from tetweave_codec.decoder import decode_detailed
 

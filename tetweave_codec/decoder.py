@@ -11,6 +11,14 @@ subdivision after it (bits 5-6, geometry/subdivision.py): the vertices of any fa
 are put back (geometry/surface_filter.py), so the mesh stays closed, 2-manifold and free of self-intersections.
 A version-2 file of an open input may list faces that only cap the input's holes (flags bit 7, formats/holes.py):
 they are removed last (geometry/holes.py), leaving a 2-manifold with boundary, still free of self-intersections.
+
+Levels (`LEVELS`, the `level` keyword): a decoder may stop early. "control" is the marching-tets surface (the mesh
+the file's points define, before any filter), "smoothed" applies the file's Taubin steps without its Loop levels,
+"full" (the default) the file's whole filter. Each is checked the same way (the smoothed level's crossing faces go
+back to the control surface), so every level is closed, 2-manifold and free of self-intersections, and the holes
+section (whose ranks name faces of the control surface) opens the same holes in each. Faces: control and smoothed
+have the control surface's F0 less the K listed faces, full 4^L times that (L Loop levels; F0 - K again on the
+rare surface whose filter the decoder drops).
 """
 
 from __future__ import annotations
@@ -27,6 +35,24 @@ from tetweave_codec.geometry.holes import open_holes
 from tetweave_codec.geometry.marching_tets import marching_tets_numpy
 from tetweave_codec.geometry.sh import check_degree, num_coeffs
 from tetweave_codec.geometry.surface_filter import filter_surface
+
+LEVELS = ("control", "smoothed", "full")  # lightest first; "full" is the file's own filter
+DEFAULT_LEVEL = "full"
+
+
+def check_level(level: str) -> str:
+    """`level` if it is one of LEVELS, else ValueError (callers convert to their error type)."""
+    if level not in LEVELS:
+        raise ValueError(f"unknown decode level {level!r}: use {', '.join(LEVELS)}")
+    return level
+
+
+def level_filter(smoothing: int, subdivision: int, level: str) -> tuple[int, int]:
+    """The (Taubin steps, Loop levels) a decode at `level` applies, of a file's `smoothing` and `subdivision`."""
+    check_level(level)
+    if level == "control":
+        return 0, 0
+    return (smoothing, 0) if level == "smoothed" else (smoothing, subdivision)
 
 
 class DecodeWarning(UserWarning):
@@ -50,6 +76,7 @@ class DecodeResult:
         subdivision and holes; what a holes section's ranks name), over the first vertices of the closed surface.
     closed_vertices, closed_faces: the surface before the holes were opened (the same arrays as vertices and faces
         for a file without a holes section), in the input mesh's frame.
+    level: the level decoded (LEVELS); smoothing, subdivision: the Taubin steps and Loop levels it applied.
     """
 
     vertices: np.ndarray
@@ -62,6 +89,9 @@ class DecodeResult:
     extracted_faces: np.ndarray | None = None
     closed_vertices: np.ndarray | None = None
     closed_faces: np.ndarray | None = None
+    level: str = DEFAULT_LEVEL
+    smoothing: int = 0
+    subdivision: int = 0
 
 
 def mesh_from_points(
@@ -73,6 +103,7 @@ def mesh_from_points(
     smoothing: int = 0,
     subdivision: int = 0,
     creases: bool = False,
+    level: str = DEFAULT_LEVEL,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Extract the TetWeave surface of a point cloud (in the frame of `points`).
 
@@ -85,9 +116,11 @@ def mesh_from_points(
         smoothing: Taubin steps 0-3 (the container's flags bits 3-4).
         subdivision: Loop levels 0-2 after the smoothing (flags bits 5-6).
         creases: crease-preserving smoothing (bit 7 of the position-bits byte).
+        level: "control", "smoothed" or "full" (the module docstring; ValueError for another name).
     Returns:
         vertices (V, 3) float64, faces (F, 3) int64 (outward; both empty when s has one sign only).
     """
+    smoothing, subdivision = level_filter(smoothing, subdivision, level)
     result = _extract(points, s, c, sh_degree, backend, {}, time.perf_counter, smoothing, subdivision, creases)
     return result.vertices, result.faces
 
@@ -128,25 +161,50 @@ def _extract(points, s, c, sh_degree, backend, seconds, clock, smoothing=0, subd
     return _Extracted(out.vertices, out.faces, tz, out.restored, mt.faces, children)
 
 
-def decode(data: bytes, backend: str | None = None) -> tuple[np.ndarray, np.ndarray]:
+def decode(data: bytes, backend: str | None = None, level: str = DEFAULT_LEVEL) -> tuple[np.ndarray, np.ndarray]:
     """Decode a `.tw` file to a triangle mesh in the original input's frame.
 
     Args:
         data: the file's bytes.
         backend: None (the backend recorded in the file) or an explicit override.
+        level: "control", "smoothed" or "full" (default: the file's whole filter; the module docstring).
     Returns:
         vertices (V, 3) float64, faces (F, 3) int64.
     Raises:
-        ContainerError: malformed, truncated, corrupted or unsupported file.
+        ContainerError: malformed, truncated, corrupted or unsupported file. ValueError: an unknown level.
     """
-    result = decode_detailed(data, backend)
+    result = decode_detailed(data, backend, level=level)
     return result.vertices, result.faces
 
 
-def decode_detailed(data: bytes, backend: str | None = None, clock=time.perf_counter) -> DecodeResult:
+def level_faces(data: bytes, backend: str | None = None) -> dict[str, int | None]:
+    """Faces of a decode at each level (LEVELS -> count), from the control surface alone (unpack, Delaunay and
+    marching tets: no filter, no crossing check).
+
+    control and smoothed: F0 - K (smoothing moves vertices only; the K faces of the holes section go); full:
+    (F0 - K) * 4^L, as Loop subdivision splits each face in four per level and the holes take a face's 4^L
+    children with it. Exact except where the decoder drops the filter of a surface it cannot keep free of
+    crossings within MAX_CHECKS checks (never seen on an encoder's file; full then has F0 - K, what `decode` tells),
+    and None for full where the decoder refuses the file (more than MAX_SUBDIVIDED_FACES subdivided faces).
+    ContainerError as `decode`."""
+    from tetweave_codec.geometry.surface_filter import MAX_SUBDIVIDED_FACES
+
+    result = decode_detailed(data, backend, level="control")
+    control = len(result.faces)
+    levels = result.container.subdivision
+    full: int | None = control * 4**levels
+    if levels and len(result.extracted_faces) * 4**levels > MAX_SUBDIVIDED_FACES:
+        full = None
+    return {"control": control, "smoothed": control, "full": full}
+
+
+def decode_detailed(
+    data: bytes, backend: str | None = None, clock=time.perf_counter, level: str = DEFAULT_LEVEL
+) -> DecodeResult:
     """`decode` plus the parsed container, the backend used and per-stage timings measured with `clock`."""
     from tetweave_codec.formats.tw import unpack
 
+    check_level(level)
     seconds: dict[str, float] = {}
     t0 = clock()
     tw = unpack(data)
@@ -161,9 +219,8 @@ def decode_detailed(data: bytes, backend: str | None = None, clock=time.perf_cou
                 stacklevel=2,
             )
             backend = available_backends()[0]
-    ex = _extract(
-        tw.points, tw.s, tw.c, tw.sh_degree, backend, seconds, clock, tw.smoothing, tw.subdivision, tw.creases
-    )
+    smoothing, subdivision = level_filter(tw.smoothing, tw.subdivision, level)
+    ex = _extract(tw.points, tw.s, tw.c, tw.sh_degree, backend, seconds, clock, smoothing, subdivision, tw.creases)
     closed_v = ex.vertices * float(tw.scale) + tw.offset
     vertices, faces = closed_v, ex.faces
     holes = tw.holes
@@ -173,5 +230,5 @@ def decode_detailed(data: bytes, backend: str | None = None, clock=time.perf_cou
         seconds["holes"] = clock() - t0
     return DecodeResult(
         vertices, faces, tw, ex.tz.backend, seconds, len(ex.tz.tets), ex.restored, ex.extracted_faces, closed_v,
-        ex.faces,
+        ex.faces, level, smoothing, subdivision,
     )  # fmt: skip

@@ -180,7 +180,8 @@ def encode_file(task: Task) -> dict:
 
 
 def decode_file(task: Task) -> dict:
-    """Rebuild the mesh of one .tw file; task.options: {"format": "obj"|"ply"|..., "delaunay": "file"|backend}.
+    """Rebuild the mesh of one .tw file; task.options: {"format": "obj"|"ply"|..., "delaunay": "file"|backend,
+    "level": "control"|"smoothed"|"full" (default full)}.
 
     Returns {"status": "ok", "data": mesh file bytes, "points", "vertices", "faces", "seconds"} or a failed
     result. Numpy only: never imports torch.
@@ -196,7 +197,9 @@ def decode_file(task: Task) -> dict:
         backend = task.options.get("delaunay", "file")
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # a missing backend: the file decodes with another one
-            result = decode_detailed(data, None if backend == "file" else backend)
+            result = decode_detailed(
+                data, None if backend == "file" else backend, level=task.options.get("level", "full")
+            )
         out = mesh_bytes(result.vertices, result.faces, task.options.get("format", "obj"))
     except Exception as exc:
         return failed(exc, t0)
