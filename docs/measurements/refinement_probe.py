@@ -25,7 +25,8 @@ vertex normal of the subdivided surface:
   its own stream (a file cut after any level decodes).
 * Self-intersections: after each level, `geometry.intersections.self_intersecting_faces`; the coefficients of the
   vertices of crossing faces are zeroed (counted) until none cross; where crossing faces have no coefficient left,
-  their vertices go to the level's midpoint positions (counted; the parent surface itself).
+  the decoder's own fallback (`surface_filter.restore_crossings`, run by the decoder too) puts their vertices to
+  the level's midpoint positions (counted; the parent surface itself).
 
 `decode_layer` is the decoder side (it rebuilds the mesh from the coded bytes, and is what "decode time of the
 layer" times); the encoder checks that it reproduces the encoder's mesh exactly.
@@ -84,6 +85,7 @@ CURV_EDGES = (0.5, 2.0)  # curvature buckets: |Loop - midpoint| along the normal
 MAG_ALPHABET = 16  # |k| - 1 symbols; the last one escapes to Elias-gamma raw bits
 MAX_CHECKS = 16  # self-intersection rounds per level
 HEADER_FIXED = 4 + 4 + 1  # step float32, stream size uint32, histogram size byte
+LAST_SPLIT: dict = {}  # estimated bits of the last coded level: significance, sign (at most), magnitude
 
 
 @dataclass
@@ -94,6 +96,7 @@ class Config:
     gain: float = 1.0  # step_l = step_1 * gain^(l-1)
     kappa: float = 0.12  # lambda = kappa * step^2 * mean vertex area of the level
     even: bool = False  # old vertices get displacements too
+    distortion: str = "l2"  # l2: lambda = kappa step^2 mean area; l1: lambda = kappa step mean area
 
 
 # ------------------------------------------------------------------------------------------------ metric
@@ -268,9 +271,17 @@ def _symbol_bits(p1: np.ndarray, ctx: np.ndarray, k: np.ndarray, mag_bits: np.nd
     return sig_bits + np.where(k != 0, 1.0 + mag_bits[np.maximum(mag, 0)] + esc, 0.0)
 
 
-def rdo_quantize(e: np.ndarray, a: np.ndarray, ctx: np.ndarray, step: float, lam: float) -> np.ndarray:
-    """Coefficients k (m,) int64 for targets e (m,), areas a (m,): minimise a (e - k step)^2 + lam bits(k) over
-    k in {0, round(e/step), round - 1 (toward 0)}, with models refitted from the previous pass (two passes)."""
+def rdo_quantize(
+    e: np.ndarray, a: np.ndarray, ctx: np.ndarray, step: float, lam: float, distortion: str = "l2"
+) -> np.ndarray:
+    """Coefficients k (m,) int64 for targets e (m,), areas a (m,): minimise a d(e - k step) + lam bits(k) over
+    k in {0, round(e/step), round - 1 (toward 0)}, with models refitted from the previous pass (two passes).
+    d is the square (distortion "l2") or the absolute value ("l1": Chamfer is a mean distance, not a squared
+    one, so a few large targets matter less than many small ones)."""
+
+    def d(x):
+        return x**2 if distortion == "l2" else np.abs(x)
+
     r = np.rint(np.abs(e) / step).astype(np.int64)
     s = np.sign(e).astype(np.int64)
     k = s * r
@@ -282,10 +293,10 @@ def rdo_quantize(e: np.ndarray, a: np.ndarray, ctx: np.ndarray, step: float, lam
         mags = np.minimum(np.abs(k[k != 0]) - 1, MAG_ALPHABET - 1)
         hist = np.bincount(mags, minlength=MAG_ALPHABET) + 0.5
         mag_bits = -np.log2(hist / hist.sum())
-        best_k, best_j = np.zeros_like(k), a * e**2 + lam * _symbol_bits(p1, ctx, np.zeros_like(k), mag_bits)
+        best_k, best_j = np.zeros_like(k), a * d(e) + lam * _symbol_bits(p1, ctx, np.zeros_like(k), mag_bits)
         for cand in (r, np.maximum(r - 1, 0)):
             kk = s * cand
-            j = a * (e - kk * step) ** 2 + lam * _symbol_bits(p1, ctx, kk, mag_bits)
+            j = a * d(e - kk * step) + lam * _symbol_bits(p1, ctx, kk, mag_bits)
             better = j < best_j
             best_k[better], best_j[better] = kk[better], j[better]
         k = best_k
@@ -315,6 +326,17 @@ def encode_level(k: np.ndarray, ctx: np.ndarray, sctx: np.ndarray, step: float, 
             w.encode_raw(nb, np.full(len(nb), 5))
             w.encode_raw(esc - (1 << nb), nb)
     stream = w.finish()
+    LAST_SPLIT.clear()
+    LAST_SPLIT.update(
+        sig_bits=-float(
+            np.log2(
+                np.where(sig == 1, 1, 0) * binary_weight_rows(ctx_bytes[ctx])[:, 1] / 2**24
+                + np.where(sig == 0, 1, 0) * binary_weight_rows(ctx_bytes[ctx])[:, 0] / 2**24
+            ).sum()
+        ),
+        sign_bits=float(len(sym)),
+        mag_bits=float(-np.log2((histogram_weights(hist)[sym] + 1) / 2**24).sum()) if len(sym) else 0.0,
+    )
     header = struct.pack("<fIB", step, len(stream), len(hist))
     return header + bytes(ctx_bytes.astype(np.uint8)) + bytes(sign_bytes.astype(np.uint8)) + bytes(hist) + stream
 
@@ -357,40 +379,48 @@ def apply_coefficients(geo: LevelGeometry, k: np.ndarray, step: float) -> np.nda
 
 
 def fix_crossings(geo: LevelGeometry, k: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarray, int, int]:
-    """Zero the coefficients of vertices of crossing faces until none cross; where crossing faces have none
-    left, put their vertices to the midpoint positions. Returns (vertices, k, zeroed, restored)."""
+    """Zero the coefficients of vertices of crossing faces until no crossing face has a coefficient left (at
+    most MAX_CHECKS checks), then what the decoder does too: `surface_filter.restore_crossings` of the result
+    against the level's midpoint positions (the parent surface itself). Returns (vertices, k, zeroed,
+    restored)."""
     k = k.copy()
     v = apply_coefficients(geo, k, step)
     pos = np.full(len(v), -1, dtype=np.int64)
     pos[geo.coded] = np.arange(len(geo.coded))
-    zeroed = restored = 0
+    zeroed = 0
     interest = None
-    moved_back = np.zeros(len(v), dtype=bool)
     for _ in range(MAX_CHECKS):
         bad = self_intersecting_faces(v, geo.faces, only=interest)
         if not bad.any():
-            return v, k, zeroed, restored
-        verts = np.unique(geo.faces[bad])
-        idx = pos[verts]
-        has = idx >= 0
-        nonzero = idx[has][k[idx[has]] != 0]
+            return v, k, zeroed, 0
+        idx = pos[np.unique(geo.faces[bad])]
+        idx = idx[idx >= 0]
+        nonzero = idx[k[idx] != 0]
+        if not len(nonzero):
+            break
+        k[nonzero] = 0
+        zeroed += len(nonzero)
         changed = np.zeros(len(v), dtype=bool)
-        if len(nonzero):
-            k[nonzero] = 0
-            zeroed += len(nonzero)
-            changed[geo.coded[nonzero]] = True
-            v = apply_coefficients(geo, k, step)
-            v[moved_back] = geo.midpoint[moved_back]
-        else:
-            back = verts[~moved_back[verts]]
-            if not len(back):
-                break
-            v[back] = geo.midpoint[back]
-            moved_back[back] = True
-            restored += len(back)
-            changed[back] = True
+        changed[geo.coded[nonzero]] = True
+        v = apply_coefficients(geo, k, step)
         interest = changed[geo.faces].any(axis=1) | bad
-    raise RuntimeError("crossings not settled")
+    v, restored, _ = restore_crossings(v, geo.midpoint, geo.faces)
+    return v, k, zeroed, restored
+
+
+def target_statistics(e: np.ndarray, a: np.ndarray) -> dict:
+    """How sparse a level's targets e (m,) are, with vertex areas a (m,): kurtosis (3 for a Gaussian, large for
+    a few big coefficients among many small), the share of the area-weighted squared error in the 10 % largest,
+    the share of vertices without a target (no hit within the bound)."""
+    w = a * e**2
+    top = np.sort(w)[::-1][: max(1, len(w) // 10)]
+    m2 = float(np.mean(e**2))
+    return {
+        "mean_abs_target": float(np.mean(np.abs(e))),
+        "kurtosis": float(np.mean(e**4) / m2**2) if m2 > 0 else 0.0,
+        "top10_energy": float(top.sum() / max(w.sum(), 1e-300)),
+        "no_target": float(np.mean(e == 0)),
+    }
 
 
 def encode_layer(inp: Input, base: Base, cfg: Config, step1: float, keep_levels: bool = False) -> dict:
@@ -408,8 +438,8 @@ def encode_layer(inp: Input, base: Base, cfg: Config, step1: float, keep_levels:
         e = normal_targets(inp, p, nrm, BOUND_EDGES * geo.edge_len)
         a = geo.areas[geo.coded]
         ctx, sctx = contexts(geo, step)
-        lam = cfg.kappa * step**2 * float(a.mean())
-        k = rdo_quantize(e, a, ctx, step, lam)
+        lam = cfg.kappa * step ** (2 if cfg.distortion == "l2" else 1) * float(a.mean())
+        k = rdo_quantize(e, a, ctx, step, lam, cfg.distortion)
         v_new, k, zeroed, restored = fix_crossings(geo, k, step)
         data = encode_level(k, ctx, sctx, step, n_ctx)
         out["data"] += data
@@ -426,6 +456,8 @@ def encode_layer(inp: Input, base: Base, cfg: Config, step1: float, keep_levels:
                 "rms_target": float(np.sqrt(np.mean(e**2))),
                 "rms_residual": float(np.sqrt(np.mean((e - k * step) ** 2))),
                 "edge_len": geo.edge_len,
+                **target_statistics(e, a),
+                **LAST_SPLIT,
             }
         )
         sig = np.zeros(len(v_new), dtype=bool)
@@ -448,9 +480,8 @@ def decode_layer(base: Base, data: bytes, cfg: Config) -> tuple[np.ndarray, np.n
             return geo, ctx, sctx
 
         k, step, at, geo = decode_level(data, at, geo_fn, n_ctx)
-        v_new = apply_coefficients(geo, k, step)
-        if self_intersecting_faces(v_new, geo.faces).any():
-            raise RuntimeError("decoded level crosses itself")  # the encoder removed every crossing
+        # the encoder zeroed the coefficients of crossing faces; what still crosses goes to the parent surface
+        v_new, _, _ = restore_crossings(apply_coefficients(geo, k, step), geo.midpoint, geo.faces)
         sig = np.zeros(len(v_new), dtype=bool)
         sig[geo.coded[k != 0]] = True
         v, f, top = v_new, geo.faces, geo.topology
@@ -536,10 +567,19 @@ def cmd_run(args) -> None:
             for levels in [int(x) for x in args.levels.split(",")]:
                 for gain in [float(x) for x in args.gain.split(",")]:
                     for kappa in [float(x) for x in args.kappa.split(",")]:
-                        configs.append(Config(source, rule, levels, gain, kappa, args.even))
+                        for dist in args.distortion.split(","):
+                            configs.append(Config(source, rule, levels, gain, kappa, args.even, dist))
+    done = set()  # (base, configuration) already in the output file: a rerun resumes
+    if Path(args.out).exists():
+        for line in Path(args.out).read_text().splitlines():
+            r = json.loads(line)
+            if r.get("kind") == "refined" and r["mesh"] == args.mesh and r["budget"] == args.budget:
+                done.add((r["base"], *(r.get(f, d) for f, d in asdict(Config()).items())))
     for base_path in args.base.split(","):
         bases = {}
         for cfg in configs:
+            if (Path(base_path).name, *asdict(cfg).values()) in done:
+                continue
             if cfg.source not in bases:
                 bases[cfg.source] = load_base(base_path, inp, cfg.source)
             base = bases[cfg.source]
@@ -569,6 +609,48 @@ def cmd_run(args) -> None:
                 fh.write(json.dumps(row) + "\n")
 
 
+IDEAL_STEP = 1e-7  # a step far below every target: the layer's coefficients are (almost) exact
+ZERO_RATE_STEP = 1e3  # a step far above every target: no coefficient, the subdivided surface alone
+
+
+def cmd_analyse(args) -> None:
+    """Why the layer costs what it does, on one base: the subdivided surface without coefficients, with exact
+    coefficients (the most L levels of normal displacement can give, at any rate), the targets' statistics, and
+    the layer's own rate-distortion curve (layer bytes = the given fractions of the base's)."""
+    inp = Input(f"../shared/meshes/{args.mesh}.ply")
+    base = load_base(args.base, inp, args.source)
+    row0 = {"kind": "analyse", "mesh": args.mesh, "base": Path(args.base).name, "base_bytes": base.file_bytes}
+    for levels in [int(x) for x in args.levels.split(",")]:
+        cfg = Config(args.source, args.rule, levels, args.gain, args.kappa)
+        for name, step in (("zero_rate", ZERO_RATE_STEP), ("exact", IDEAL_STEP)):
+            try:
+                res = encode_layer(inp, base, cfg, step)
+            except RuntimeError as exc:  # the crossing test cannot bound its work on the largest surfaces
+                print(f"{name} L={levels}: {exc}", file=sys.stderr)
+                continue
+            m = metrics(inp, res["vertices"], res["faces"])
+            row = {**row0, "what": name, **asdict(cfg), "faces": len(res["faces"]), "zeroed": res["zeroed"],
+                   "levels_stats": res["levels"], **m}  # fmt: skip
+            print(json.dumps(row), flush=True)
+            with open(args.out, "a") as fh:
+                fh.write(json.dumps(row) + "\n")
+    cfg = Config(args.source, args.rule, args.curve_levels, args.gain, args.kappa)
+    for frac in [float(x) for x in args.fractions.split(",")]:
+        target = int(base.file_bytes * (1 + frac))
+        try:
+            step, res, _ = match_budget(inp, base, cfg, target)
+        except (ValueError, RuntimeError) as exc:
+            print(f"curve {frac}: {exc}", file=sys.stderr)
+            continue
+        m = metrics(inp, res["vertices"], res["faces"])
+        row = {**row0, "what": "curve", **asdict(cfg), "layer_fraction": frac, "level_bytes": res["level_bytes"],
+               "bytes": base.file_bytes + sum(res["level_bytes"]), "faces": len(res["faces"]), "step": step,
+               "levels_stats": res["levels"], **m}  # fmt: skip
+        print(json.dumps(row), flush=True)
+        with open(args.out, "a") as fh:
+            fh.write(json.dumps(row) + "\n")
+
+
 def _load_rows(paths: list[str]) -> tuple[dict, list[dict]]:
     today, refined = {}, []
     for path in paths:
@@ -576,7 +658,7 @@ def _load_rows(paths: list[str]) -> tuple[dict, list[dict]]:
             r = json.loads(line)
             if r["kind"] == "today":
                 today[(r["mesh"], r["budget"])] = r
-            else:
+            elif r["kind"] == "refined":
                 refined.append(r)
     for r in refined:
         t = today[(r["mesh"], r["budget"])]
@@ -589,7 +671,11 @@ def config_key(r: dict) -> str:
     """A configuration across points: base fraction class, source, rule, levels, gain, kappa, even."""
     frac = "50%" if r["fraction"] < 0.6 else "70%"
     even = " +even" if r["even"] else ""
-    return f"base {frac}, {r['source']}, {r['rule']}, L={r['levels']}, gain {r['gain']:g}, kappa {r['kappa']:g}{even}"
+    dist = r.get("distortion", "l2")
+    return (
+        f"base {frac}, {r['source']}, {r['rule']}, L={r['levels']}, gain {r['gain']:g}, {dist} kappa {r['kappa']:g}"
+        f"{even}"
+    )
 
 
 def cmd_table(args) -> None:
@@ -661,11 +747,23 @@ def main(argv=None) -> None:
     r.add_argument("--gain", default="1")
     r.add_argument("--kappa", default="0.12")
     r.add_argument("--even", action="store_true")
+    r.add_argument("--distortion", default="l2", help="l2, l1 or both (comma-separated)")
     r.add_argument("--out", required=True)
+    an = sub.add_parser("analyse", help="exact-coefficient floors, target statistics, the layer's RD curve")
+    an.add_argument("--mesh", required=True, choices=MESHES)
+    an.add_argument("--base", required=True)
+    an.add_argument("--source", default="control")
+    an.add_argument("--rule", default="loop")
+    an.add_argument("--levels", default="1,2,3")
+    an.add_argument("--gain", type=float, default=0.7)
+    an.add_argument("--kappa", type=float, default=0.05)
+    an.add_argument("--curve-levels", type=int, default=2)
+    an.add_argument("--fractions", default="0.25,0.5,1,2")
+    an.add_argument("--out", required=True)
     tb = sub.add_parser("table", help="markdown tables of result files")
     tb.add_argument("results", nargs="+")
     args = ap.parse_args(argv)
-    {"today": cmd_today, "run": cmd_run, "table": cmd_table}[args.cmd](args)
+    {"today": cmd_today, "run": cmd_run, "analyse": cmd_analyse, "table": cmd_table}[args.cmd](args)
 
 
 if __name__ == "__main__":
