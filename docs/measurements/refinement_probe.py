@@ -85,7 +85,7 @@ CURV_EDGES = (0.5, 2.0)  # curvature buckets: |Loop - midpoint| along the normal
 MAG_ALPHABET = 16  # |k| - 1 symbols; the last one escapes to Elias-gamma raw bits
 MAX_CHECKS = 16  # self-intersection rounds per level
 HEADER_FIXED = 4 + 4 + 1  # step float32, stream size uint32, histogram size byte
-LAST_SPLIT: dict = {}  # estimated bits of the last coded level: significance, sign (at most), magnitude
+LAST_SPLIT: dict = {}  # estimated bits of the last coded level: significance, sign, magnitude
 
 
 @dataclass
@@ -326,6 +326,7 @@ def encode_level(k: np.ndarray, ctx: np.ndarray, sctx: np.ndarray, step: float, 
             w.encode_raw(nb, np.full(len(nb), 5))
             w.encode_raw(esc - (1 << nb), nb)
     stream = w.finish()
+    sw = binary_weight_rows(sign_bytes[sctx[nzi]])
     LAST_SPLIT.clear()
     LAST_SPLIT.update(
         sig_bits=-float(
@@ -334,7 +335,7 @@ def encode_level(k: np.ndarray, ctx: np.ndarray, sctx: np.ndarray, step: float, 
                 + np.where(sig == 0, 1, 0) * binary_weight_rows(ctx_bytes[ctx])[:, 0] / 2**24
             ).sum()
         ),
-        sign_bits=float(len(sym)),
+        sign_bits=-float(np.log2((np.where(neg[nzi] == 1, sw[:, 1], sw[:, 0]) + 1) / 2**24).sum()),
         mag_bits=float(-np.log2((histogram_weights(hist)[sym] + 1) / 2**24).sum()) if len(sym) else 0.0,
     )
     header = struct.pack("<fIB", step, len(stream), len(hist))
@@ -651,6 +652,47 @@ def cmd_analyse(args) -> None:
             fh.write(json.dumps(row) + "\n")
 
 
+def _entropy(p):
+    p = np.clip(p, 1e-12, 1 - 1e-12)
+    return -(p * np.log2(p) + (1 - p) * np.log2(1 - p))
+
+
+def _conditional_entropy(bits: np.ndarray, given: np.ndarray) -> float:
+    """H(bits | given) in bits per symbol, from the empirical frequencies (an ideal adaptive coder's rate)."""
+    return float(sum((given == g).mean() * _entropy(bits[given == g].mean()) for g in np.unique(given)))
+
+
+def cmd_contexts(args) -> None:
+    """How much any context could save on level 1's significance map: its entropy alone, given the probe's
+    contexts, and given the significance of the 4 other new vertices of the edge's two faces (not causal: an
+    oracle no real coder reaches, so a bound), at plain rounding with the given step; and how often the sign of a
+    significant coefficient is the sign of the Loop-minus-midpoint offset (the sign context)."""
+    inp = Input(f"../shared/meshes/{args.mesh}.ply")
+    base = load_base(args.base, inp, "control")
+    cfg = Config("control", "loop", 1)
+    geo = level_geometry(base.vertices, base.faces, None, base.creases, cfg, None)
+    e = normal_targets(inp, geo.predicted[geo.coded], geo.normals[geo.coded], BOUND_EDGES * geo.edge_len)
+    ctx, _ = contexts(geo, args.step)
+    sig = np.rint(e / args.step) != 0
+    # level 1's faces: every parent face's middle child (4f + 3) lists its three new vertices
+    middle = geo.faces[3::4] - len(base.vertices)
+    s3 = sig[middle]
+    neighbours = np.zeros(len(sig), dtype=np.int64)
+    for j in range(3):
+        np.add.at(neighbours, middle[:, j], s3.sum(axis=1) - s3[:, j])
+    row = {
+        "kind": "contexts", "mesh": args.mesh, "base": Path(args.base).name, "step": args.step,
+        "coded": len(sig), "significant": float(sig.mean()), "h_alone": float(_entropy(sig.mean())),
+        "h_probe_contexts": _conditional_entropy(sig, ctx),
+        "h_oracle_neighbours": _conditional_entropy(sig, neighbours),
+        "h_both": _conditional_entropy(sig, ctx * 5 + neighbours),
+        "sign_agrees_with_curvature": float(np.mean(np.sign(e[sig]) == np.sign(geo.curv[sig]))),
+    }  # fmt: skip
+    print(json.dumps(row), flush=True)
+    with open(args.out, "a") as fh:
+        fh.write(json.dumps(row) + "\n")
+
+
 def _load_rows(paths: list[str]) -> tuple[dict, list[dict]]:
     today, refined = {}, []
     for path in paths:
@@ -760,10 +802,16 @@ def main(argv=None) -> None:
     an.add_argument("--curve-levels", type=int, default=2)
     an.add_argument("--fractions", default="0.25,0.5,1,2")
     an.add_argument("--out", required=True)
+    cx = sub.add_parser("contexts", help="entropy of level 1's significance map under contexts and an oracle")
+    cx.add_argument("--mesh", required=True, choices=MESHES)
+    cx.add_argument("--base", required=True)
+    cx.add_argument("--step", type=float, required=True)
+    cx.add_argument("--out", required=True)
     tb = sub.add_parser("table", help="markdown tables of result files")
     tb.add_argument("results", nargs="+")
     args = ap.parse_args(argv)
-    {"today": cmd_today, "run": cmd_run, "analyse": cmd_analyse, "table": cmd_table}[args.cmd](args)
+    commands = {"today": cmd_today, "run": cmd_run, "analyse": cmd_analyse, "contexts": cmd_contexts}
+    (commands | {"table": cmd_table})[args.cmd](args)
 
 
 if __name__ == "__main__":
