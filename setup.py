@@ -6,6 +6,8 @@
   tets; geometry/marching_tets.py is the reference.
 * `tetweave_codec.geometry._intersect_native` (tetweave_codec/geometry/_intersect_native.c): the self-intersection
   test of the decoder's smoothing check; geometry/intersections.py is the reference.
+* `tetweave_codec.geometry._filter_native` (tetweave_codec/geometry/_filter_native.c): the decoder's Taubin steps
+  and Loop levels; geometry/smoothing.py and geometry/subdivision.py are the reference.
 
 Each Python module falls back to its numpy/Python code when its extension is absent, with identical output.
 `optional=True`: a machine without a C compiler still installs. The flags keep the binary64 results identical to
@@ -32,6 +34,12 @@ setup(
             "tetweave_codec.geometry._intersect_native",
             ["tetweave_codec/geometry/_intersect_native.c"],
             depends=["tetweave_codec/geometry/_native_sort.h"],
+            extra_compile_args=FLAGS,
+            optional=True,
+        ),
+        Extension(
+            "tetweave_codec.geometry._filter_native",
+            ["tetweave_codec/geometry/_filter_native.c"],
             extra_compile_args=FLAGS,
             optional=True,
         ),

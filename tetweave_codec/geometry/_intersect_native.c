@@ -20,6 +20,8 @@
 #include "_native_sort.h"
 
 #define MAX_CANDIDATE_PAIRS 30000000LL
+/* `marked` counts the faces per cell of the first grid in a dense array of at most this many cells (2 bytes each) */
+#define MAX_DENSE_CELLS (1LL << 25)
 
 static int cmp_double(const void *a, const void *b) {
     double x = *(const double *)a, y = *(const double *)b;
@@ -57,6 +59,27 @@ static double kth_smallest(double *a, int64_t n, int64_t k) {
             return a[k];
     }
     return a[k];
+}
+
+/* The reference's first cell size: 2 * median(ext[0..n)) (numpy's median: the mean of the two middle values for
+ * even n), or the largest extent where that is not > 0, or 1. Clobbers `sorted` (n items). */
+static double first_cell(const double *ext, double *sorted, int64_t n) {
+    memcpy(sorted, ext, sizeof(double) * (size_t)n);
+    double upper = kth_smallest(sorted, n, n / 2), median = upper;
+    if (n % 2 == 0) { /* the largest value before position n / 2 is the (n / 2 - 1)-th smallest */
+        double lower = sorted[0];
+        for (int64_t i = 1; i < n / 2; i++)
+            if (sorted[i] > lower) lower = sorted[i];
+        median = (lower + upper) / 2.0;
+    }
+    double cell = 2.0 * median;
+    if (!(cell > 0)) {
+        cell = sorted[0];
+        for (int64_t i = 1; i < n; i++)
+            if (sorted[i] > cell) cell = sorted[i];
+        if (cell == 0) cell = 1.0;
+    }
+    return cell;
 }
 
 static inline void sub3(const double *a, const double *b, double *r) {
@@ -407,21 +430,7 @@ static PyObject *faces_flags(PyObject *self, PyObject *args) {
         status = -1;
         goto done;
     }
-    memcpy(sorted, ext, sizeof(double) * (size_t)n);
-    double upper = kth_smallest(sorted, n, n / 2), median = upper;
-    if (n % 2 == 0) { /* the largest value before position n / 2 is the (n / 2 - 1)-th smallest */
-        double lower = sorted[0];
-        for (int64_t i = 1; i < n / 2; i++)
-            if (sorted[i] > lower) lower = sorted[i];
-        median = (lower + upper) / 2.0;
-    }
-    double cell = 2.0 * median;
-    if (!(cell > 0)) {
-        cell = sorted[0];
-        for (int64_t i = 1; i < n; i++)
-            if (sorted[i] > cell) cell = sorted[i];
-        if (cell == 0) cell = 1.0;
-    }
+    double cell = first_cell(ext, sorted, n);
     free(sorted);
     double origin[3];
     for (int k = 0; k < 3; k++) {
@@ -541,8 +550,278 @@ done:
     return PyLong_FromLong(status);
 }
 
+/* One face's corners, normal (x1 - x0) x (x2 - x0), its length, box and vertex indices, as `faces` gathers them. */
+typedef struct {
+    double corners[9], normal[3], box[6], nlen;
+    int64_t ids[3], face, c0[3], c1[3]; /* c0, c1: the lower and upper cells of its box */
+} FaceData;
+
+static void face_data(const double *v, const int64_t *f, int64_t face, const double *lo, const double *hi,
+                      FaceData *d) {
+    d->face = face;
+    for (int k = 0; k < 3; k++) {
+        d->ids[k] = f[3 * face + k];
+        d->box[k] = lo[3 * face + k];
+        d->box[3 + k] = hi[3 * face + k];
+        for (int c = 0; c < 3; c++) d->corners[3 * k + c] = v[3 * f[3 * face + k] + c];
+    }
+    double e1[3], e2[3];
+    sub3(d->corners + 3, d->corners, e1);
+    sub3(d->corners + 6, d->corners, e2);
+    cross3(e1, e2, d->normal);
+    d->nlen = sqrt(dot3(d->normal, d->normal));
+}
+
+/* marked(vertices (V,3) float64, faces (F,3) int64, flags (F,) uint8 out, only (F,) uint8) -> 0: decided, flags
+ * are exactly what faces(vertices, faces, flags, only) writes; 2: undecided (flags all 0: the caller runs `faces`).
+ *
+ * For checks that mark few faces (geometry.surface_filter.restore_crossings after its first check): `faces`
+ * rebuilds and sorts the whole grid for them; this does O(F) passes and the marked faces' pairs only.
+ *
+ * Why the answers agree. `faces` flags both faces of every pair of valid faces with overlapping closed boxes, at
+ * least one marked, that pair_intersects accepts (its grid only lists candidates: every overlapping pair shares
+ * the cell of its larger lower corner) -- unless no cell size is feasible (status 1). It starts from first_cell()
+ * of the extents and tries another size only when that one is infeasible: more than 64 n + 10^6 grid entries, keys
+ * over 63 bits, or more than MAX_CANDIDATE_PAIRS pairs in cells. This computes the same first size and origin,
+ * sums the entries in the same order, and counts every cell's faces (a dense array over the lattice; undecided
+ * when that has more than MAX_DENSE_CELLS cells or a cell 65535 faces) to get the exact pair count: when the
+ * first size is feasible, the answer is the pair set, computed here from lists of the marked faces per cell (the
+ * same dense lattice) that every valid face's box scans, each pair once (in the cell of its larger lower corner; a pair of two marked
+ * faces from its lower face), the lower face first as in `faces`. */
+static PyObject *marked_flags(PyObject *self, PyObject *args) {
+    PyObject *ov, *of, *oo, *om;
+    if (!PyArg_ParseTuple(args, "OOOO", &ov, &of, &oo, &om)) return NULL;
+    Py_buffer bv, bf, bo, bm;
+    if (PyObject_GetBuffer(ov, &bv, PyBUF_C_CONTIGUOUS) < 0) return NULL;
+    if (bv.itemsize != 8 || bv.len % 24) {
+        PyBuffer_Release(&bv);
+        PyErr_SetString(PyExc_ValueError, "vertices: (V,3) float64");
+        return NULL;
+    }
+    if (PyObject_GetBuffer(of, &bf, PyBUF_C_CONTIGUOUS) < 0) {
+        PyBuffer_Release(&bv);
+        return NULL;
+    }
+    if (bf.itemsize != 8 || bf.len % 24) {
+        PyBuffer_Release(&bv);
+        PyBuffer_Release(&bf);
+        PyErr_SetString(PyExc_ValueError, "faces: (F,3) int64");
+        return NULL;
+    }
+    int64_t nf = bf.len / 24;
+    if (get_buffer(oo, &bo, 1, nf, "flags") < 0) {
+        PyBuffer_Release(&bv);
+        PyBuffer_Release(&bf);
+        return NULL;
+    }
+    if (get_buffer(om, &bm, 1, nf, "only") < 0) {
+        PyBuffer_Release(&bv);
+        PyBuffer_Release(&bf);
+        PyBuffer_Release(&bo);
+        return NULL;
+    }
+    const uint8_t *only = (const uint8_t *)bm.buf;
+    const double *v = (const double *)bv.buf;
+    const int64_t *f = (const int64_t *)bf.buf;
+    uint8_t *flags = (uint8_t *)bo.buf;
+    int status = 2;
+    double *lo = NULL, *hi = NULL, *ext = NULL, *sorted = NULL;
+    uint8_t *valid = NULL;
+    uint16_t *counts = NULL;
+    uint64_t *hot = NULL; /* one bit per cell: some marked face covers it (fits a cache where head does not) */
+    int32_t *cells = NULL, *head = NULL, *next = NULL, *who = NULL;
+    FaceData *mk = NULL;
+    Py_BEGIN_ALLOW_THREADS;
+    memset(flags, 0, (size_t)nf);
+    size_t cap = (size_t)(nf > 0 ? nf : 1);
+    lo = (double *)malloc(sizeof(double) * 3 * cap);
+    hi = (double *)malloc(sizeof(double) * 3 * cap);
+    ext = (double *)malloc(sizeof(double) * cap);
+    valid = (uint8_t *)malloc(cap);
+    cells = (int32_t *)malloc(sizeof(int32_t) * 6 * cap);
+    if (!lo || !hi || !ext || !valid || !cells) {
+        status = -1;
+        goto done;
+    }
+    int64_t n = 0, k_marked = 0;
+    double origin[3] = {0, 0, 0}, top[3] = {0, 0, 0};
+    for (int64_t i = 0; i < nf; i++) { /* as `faces`: valid faces, their normals, boxes and extents */
+        const double *p0 = v + 3 * f[3 * i], *p1 = v + 3 * f[3 * i + 1], *p2 = v + 3 * f[3 * i + 2];
+        double e1[3], e2[3], c[3];
+        sub3(p1, p0, e1);
+        sub3(p2, p0, e2);
+        cross3(e1, e2, c);
+        valid[i] = dot3(c, c) > 0;
+        if (!valid[i]) continue;
+        double x = 0;
+        for (int k = 0; k < 3; k++) {
+            double a = p0[k], b = p1[k], d = p2[k];
+            double mn = a, mx = a;
+            if (b < mn) mn = b;
+            if (d < mn) mn = d;
+            if (b > mx) mx = b;
+            if (d > mx) mx = d;
+            lo[3 * i + k] = mn;
+            hi[3 * i + k] = mx;
+            if (k == 0 || mx - mn > x) x = mx - mn;
+            if (n == 0 || mn < origin[k]) origin[k] = mn;
+            if (n == 0 || mx > top[k]) top[k] = mx;
+        }
+        ext[n++] = x;
+        k_marked += only[i] != 0;
+    }
+    if (nf < 2 || n < 2) { /* `faces` flags nothing */
+        status = 0;
+        goto done;
+    }
+    sorted = (double *)malloc(sizeof(double) * (size_t)n);
+    if (!sorted) {
+        status = -1;
+        goto done;
+    }
+    double cell = first_cell(ext, sorted, n);
+    /* the lattice: floor is monotone, so the largest upper cell is that of the largest upper coordinate; every
+     * quotient below is >= 0, where truncation is floor (and exact: the reference's floor of the same quotient) */
+    int64_t dims[3];
+    for (int k = 0; k < 3; k++) {
+        double q = (top[k] - origin[k]) / cell;
+        if (!(q < 1e9)) goto done; /* also NaN: a lattice this fine is never counted densely */
+        dims[k] = (int64_t)q + 1;
+    }
+    int cb = bit_length((uint64_t)dims[0]) + bit_length((uint64_t)dims[1]) + bit_length((uint64_t)dims[2]);
+    if (bit_length((uint64_t)n) + cb > 63) goto done;
+    if ((double)dims[0] * (double)dims[1] * (double)dims[2] > (double)MAX_DENSE_CELLS) goto done;
+    int64_t ncells = dims[0] * dims[1] * dims[2];
+    counts = (uint16_t *)calloc((size_t)ncells, sizeof(uint16_t));
+    head = (int32_t *)calloc((size_t)ncells, sizeof(int32_t)); /* 1 + first marked entry of a cell, 0: none */
+    hot = (uint64_t *)calloc((size_t)(ncells / 64 + 1), sizeof(uint64_t));
+    mk = (FaceData *)malloc(sizeof(FaceData) * (size_t)(k_marked > 0 ? k_marked : 1));
+    if (!counts || !head || !hot || !mk) {
+        status = -1;
+        goto done;
+    }
+    /* entries summed as `grid` sums them, faces per cell, pairs per cell; the marked faces' lists per cell */
+    double limit = 64.0 * (double)n + 1000000.0, total_cells = 0;
+    long long pairs = 0;
+    int64_t m = 0, t = 0, t_cap = 0;
+    for (int64_t i = 0; i < nf; i++) {
+        if (!valid[i]) continue;
+        int32_t *c = cells + 6 * i;
+        double span = 1;
+        for (int k = 0; k < 3; k++) {
+            double a = (double)(int64_t)((lo[3 * i + k] - origin[k]) / cell);
+            double b = (double)(int64_t)((hi[3 * i + k] - origin[k]) / cell);
+            span *= b - a + 1;
+            c[k] = (int32_t)a;
+            c[3 + k] = (int32_t)b;
+        }
+        total_cells += span;
+        if (total_cells > limit) goto done;
+        for (int64_t x = c[0]; x <= c[3]; x++)
+            for (int64_t y = c[1]; y <= c[4]; y++)
+                for (int64_t z = c[2]; z <= c[5]; z++) {
+                    uint16_t *cnt = counts + (x * dims[1] + y) * dims[2] + z;
+                    if (*cnt == UINT16_MAX) goto done;
+                    pairs += *cnt;
+                    (*cnt)++;
+                }
+        if (pairs > MAX_CANDIDATE_PAIRS) goto done;
+        if (only[i]) {
+            int64_t need = t + (int64_t)span;
+            if (need > t_cap) {
+                t_cap = 2 * need + 64;
+                int32_t *nn = (int32_t *)realloc(next, sizeof(int32_t) * (size_t)t_cap);
+                if (nn) next = nn;
+                int32_t *nw = (int32_t *)realloc(who, sizeof(int32_t) * (size_t)t_cap);
+                if (nw) who = nw;
+                if (!nn || !nw) {
+                    status = -1;
+                    goto done;
+                }
+            }
+            FaceData *d = mk + m;
+            face_data(v, f, i, lo, hi, d);
+            for (int k = 0; k < 3; k++) {
+                d->c0[k] = c[k];
+                d->c1[k] = c[3 + k];
+            }
+            for (int64_t x = c[0]; x <= c[3]; x++)
+                for (int64_t y = c[1]; y <= c[4]; y++)
+                    for (int64_t z = c[2]; z <= c[5]; z++) {
+                        int64_t at = (x * dims[1] + y) * dims[2] + z;
+                        int32_t *h = head + at;
+                        hot[at >> 6] |= (uint64_t)1 << (at & 63);
+                        who[t] = (int32_t)m;
+                        next[t] = *h;
+                        *h = (int32_t)(++t);
+                    }
+            m++;
+        }
+    }
+    /* decided: the first cell size is feasible, the answer is the pair set */
+    status = 0;
+    if (m == 0) goto done;
+    FaceData q;
+    for (int64_t i = 0; i < nf; i++) {
+        if (!valid[i]) continue;
+        const int32_t *c = cells + 6 * i;
+        const double *ql = lo + 3 * i, *qh = hi + 3 * i;
+        int have = 0;
+        for (int64_t x = c[0]; x <= c[3]; x++)
+            for (int64_t y = c[1]; y <= c[4]; y++)
+                for (int64_t z = c[2]; z <= c[5]; z++) {
+                    int64_t at = (x * dims[1] + y) * dims[2] + z;
+                    if (!(hot[at >> 6] >> (at & 63) & 1)) continue;
+                    for (int32_t e = head[at]; e > 0; e = next[e - 1]) {
+                        const FaceData *p = mk + who[e - 1];
+                        if (p->face == i || (only[i] && i > p->face)) continue; /* a marked pair from its lower face */
+                        int64_t mx = p->c0[0] > c[0] ? p->c0[0] : c[0], my = p->c0[1] > c[1] ? p->c0[1] : c[1];
+                        int64_t mz = p->c0[2] > c[2] ? p->c0[2] : c[2];
+                        if (mx != x || my != y || mz != z) continue; /* the pair's own cell */
+                        const double *pb = p->box;
+                        if (!(pb[0] <= qh[0] && ql[0] <= pb[3] && pb[1] <= qh[1] && ql[1] <= pb[4] && pb[2] <= qh[2] &&
+                              ql[2] <= pb[5]))
+                            continue;
+                        if (flags[i] && flags[p->face]) continue; /* nothing left to learn from this pair */
+                        if (!have) {
+                            face_data(v, f, i, lo, hi, &q);
+                            have = 1;
+                        }
+                        const FaceData *a = i < p->face ? &q : p, *b = i < p->face ? p : &q;
+                        if (pair_intersects(a->corners, b->corners, a->ids, b->ids, a->normal, b->normal, a->box, b->box,
+                                            a->nlen, b->nlen)) {
+                            flags[i] = 1;
+                            flags[p->face] = 1;
+                        }
+                    }
+                }
+    }
+done:
+    if (status == 2) memset(flags, 0, (size_t)nf);
+    free(lo);
+    free(hi);
+    free(ext);
+    free(sorted);
+    free(valid);
+    free(counts);
+    free(hot);
+    free(cells);
+    free(head);
+    free(next);
+    free(who);
+    free(mk);
+    Py_END_ALLOW_THREADS;
+    PyBuffer_Release(&bv);
+    PyBuffer_Release(&bf);
+    PyBuffer_Release(&bo);
+    PyBuffer_Release(&bm);
+    if (status < 0) return PyErr_NoMemory();
+    return PyLong_FromLong(status);
+}
+
 static PyMethodDef methods[] = {
     {"faces", faces_flags, METH_VARARGS, "Flags of self-intersecting faces (geometry.intersections)."},
+    {"marked", marked_flags, METH_VARARGS, "Flags of a later check whose changed faces are marked (see above)."},
     {NULL, NULL, 0, NULL},
 };
 

@@ -30,6 +30,9 @@ except ImportError:  # not built: the numpy code below
 NATIVE = _intersect_native is not None and os.environ.get("TETWEAVE_NATIVE", "1") != "0"
 
 
+# `only` marking at most 1/MARKED_SHARE of the faces: the compiled path's short way first (the decoder's later
+# checks mark a few hundred of 320K faces; the short way's hash grid is slower than the full grid for many)
+MARKED_SHARE = 8
 _MAX_CANDIDATE_PAIRS = 30_000_000  # refine the grid rather than materialise more pairs than this
 _PAIR_CHUNK = 500_000
 
@@ -221,7 +224,11 @@ def self_intersecting_faces(vertices: np.ndarray, faces: np.ndarray, only: np.nd
 
     Degenerate (zero-area) faces are neither tested nor flagged. only: (F,) bool, test only the pairs with at
     least one face marked (the decoder's later rounds, where every other pair is known not to cross); the
-    candidate grid and its work bound are those of the whole mesh either way.
+    candidate grid and its work bound are those of the whole mesh either way. With few faces marked (at most
+    1/MARKED_SHARE of them) the compiled path first tries `_intersect_native.marked`: O(F) passes that prove the
+    whole mesh's grid feasible at its first cell size (exact entry and pair counts) and then test only the marked
+    faces' pairs, found through a hash grid of their cells -- the same answer (the proof is in the C file), or no
+    answer, and then the full check runs.
     """
     v = np.ascontiguousarray(vertices, dtype=np.float64).reshape(-1, 3)
     f = np.ascontiguousarray(faces, dtype=np.int64).reshape(-1, 3)
@@ -232,9 +239,13 @@ def self_intersecting_faces(vertices: np.ndarray, faces: np.ndarray, only: np.nd
         raise ValueError("only must be one flag per face")
     if NATIVE:
         flags = np.zeros(len(f), dtype=np.uint8)
-        if _intersect_native.faces(v, f, flags, mark.astype(np.uint8)):
+        only_u8 = np.ascontiguousarray(mark).view(np.uint8)
+        if only is not None and MARKED_SHARE * int(mark.sum()) <= len(f):
+            if _intersect_native.marked(v, f, flags, only_u8) == 0:
+                return flags.view(np.bool_)
+        if _intersect_native.faces(v, f, flags, only_u8):
             raise RuntimeError("self-intersection test: too many candidate face pairs")
-        return flags.astype(bool)
+        return flags.view(np.bool_)
     flagged = np.zeros(len(f), dtype=bool)
     if len(f) < 2:
         return flagged

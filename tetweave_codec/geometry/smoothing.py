@@ -27,11 +27,19 @@ Connectivity never changes: a closed 2-manifold stays one.
 
 from __future__ import annotations
 
+import os
 from typing import Any
 
 import numpy as np
 
 from tetweave_codec.geometry.intersections import row_cross, row_dot
+
+try:  # the compiled fast path of the numpy steps below (optional; bit-identical output)
+    from tetweave_codec.geometry import _filter_native
+except ImportError:  # not built: the numpy code
+    _filter_native = None
+# geometry/_filter_native.c for `taubin` (numpy) and `mesh_edges(closed=True)`; TETWEAVE_NATIVE=0: the numpy code
+NATIVE = _filter_native is not None and os.environ.get("TETWEAVE_NATIVE", "1") != "0"
 
 TAUBIN_LAMBDA = 0.5
 TAUBIN_MU = -0.53
@@ -58,6 +66,10 @@ def mesh_edges(faces: Any, num_vertices: int, closed: bool = False) -> Any:
         key = torch.unique(e[:, 0] * n + e[:, 1])
         return torch.stack([key // n, key % n], 1)
     faces = np.asarray(faces, dtype=np.int64)
+    if closed and NATIVE:  # the same rows (the extension checks that they are every half-edge once, with its twin)
+        half = np.empty((3 * len(faces), 2), dtype=np.int64)
+        if _filter_native.half_edges(np.ascontiguousarray(faces), n, half) == 0:
+            return half
     e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
     if closed:
         key = np.sort(e[:, 0] * n + e[:, 1])
@@ -160,6 +172,10 @@ def taubin(
             for f in (lam, mu):
                 mean = torch.zeros_like(v).index_add(0, e[:, 0], v[e[:, 1]]) / deg
                 v = torch.where(has, v + f * (mean - v), v)
+        return v
+    if NATIVE:
+        v = np.array(vertices, dtype=np.float64, order="C")
+        _filter_native.taubin(v, np.ascontiguousarray(e, dtype=np.int64), int(steps), float(lam), float(mu))
         return v
     src, dst = e[:, 0], e[:, 1]
     deg = np.bincount(src, minlength=n).astype(np.float64)

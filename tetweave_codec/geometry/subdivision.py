@@ -34,11 +34,17 @@ one.
 
 from __future__ import annotations
 
+import os
 from typing import Any, NamedTuple
 
 import numpy as np
 
+from tetweave_codec.geometry import smoothing
 from tetweave_codec.geometry.smoothing import mesh_edges, neighbours_along_creases
+
+# geometry/_filter_native.c for `loop_and_midpoint` without crease rules (the decoder's Loop levels of a closed
+# mesh); the numpy code below is the reference and the fallback (TETWEAVE_NATIVE=0)
+NATIVE = smoothing._filter_native is not None and os.environ.get("TETWEAVE_NATIVE", "1") != "0"
 
 EDGE_NEAR = 0.375  # weight of an edge's two ends in its new vertex
 EDGE_FAR = 0.125  # weight of the two opposite corners
@@ -173,10 +179,35 @@ def loop_and_midpoint(
     """`loop_subdivide(vertices, faces, levels)` and `midpoint_subdivide(reference, faces, levels)` (same faces),
     the connectivity computed once: (vertices', reference', faces'). neighbours: `mesh_edges(faces, V)` if known.
     creases: (E,) bool over the first level's edges: the crease rules (`loop_level`), kept by their halves."""
+    if NATIVE and creases is None:
+        out = _native_levels(vertices, reference, faces, levels)
+        if out is not None:
+            return out
     v, f, topology = _refine(vertices, faces, levels, midpoint=False, neighbours=neighbours, creases=creases)
     r = np.asarray(reference, dtype=np.float64)
     for level in topology:
         r = _apply_level(r, level, midpoint=True)
+    return v, r, f
+
+
+def _native_levels(vertices, reference, faces, levels: int):
+    """`loop_and_midpoint` without creases through geometry/_filter_native.c (the same bits), or None when the
+    faces are not a closed, consistently oriented 2-manifold (the reference handles those)."""
+    native = smoothing._filter_native
+    v = np.ascontiguousarray(vertices, dtype=np.float64)
+    r = np.ascontiguousarray(reference, dtype=np.float64)
+    f = np.ascontiguousarray(faces, dtype=np.int64)
+    for _ in range(levels):
+        if len(f) == 0:
+            break
+        half = np.empty((3 * len(f), 2), dtype=np.int64)
+        if native.half_edges(f, len(v), half) != 0:
+            return None
+        size = len(v) + len(half) // 2
+        nv, nr, nf = np.empty((size, 3)), np.empty((size, 3)), np.empty((4 * len(f), 3), dtype=np.int64)
+        if native.loop(v, r, f, half, nv, nr, nf) != 0:
+            return None
+        v, r, f = nv, nr, nf
     return v, r, f
 
 

@@ -1,0 +1,157 @@
+"""The decoder filter's compiled paths give the numpy references' bits: Taubin steps and sorted half-edges
+(geometry/_filter_native.c), Loop and midpoint levels, the short self-intersection check of few marked faces
+(geometry/_intersect_native.c `marked`), and whole decodes of the committed files."""
+
+from __future__ import annotations
+
+import glob
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tetweave_codec.geometry import intersections, smoothing, subdivision
+from tetweave_codec.geometry.intersections import self_intersecting_faces
+from tetweave_codec.geometry.surface_filter import filter_surface
+
+REPO = Path(__file__).resolve().parent.parent
+needs_filter = pytest.mark.skipif(smoothing._filter_native is None, reason="geometry/_filter_native.c not built")
+needs_intersect = pytest.mark.skipif(intersections._intersect_native is None, reason="_intersect_native not built")
+
+
+def marching_surface(seed: int, n: int = 1500, shape: str = "torus"):
+    """A decoder's control surface of random points around an analytic shape: (vertices, faces)."""
+    from tetweave_codec.geometry.delaunay import tetrahedralize
+    from tetweave_codec.geometry.marching_tets import marching_tets_numpy
+
+    rng = np.random.default_rng(seed)
+    pts = rng.uniform(-1, 1, (n, 3))
+    if shape == "torus":
+        s = np.hypot(np.hypot(pts[:, 0], pts[:, 1]) - 0.55, pts[:, 2]) - 0.25
+    else:  # two spheres close together: thin gaps, where smoothing makes faces cross
+        s = np.minimum(np.linalg.norm(pts - [0.36, 0, 0], axis=1), np.linalg.norm(pts + [0.36, 0, 0], axis=1)) - 0.35
+    tz = tetrahedralize(pts, "auto")
+    mt = marching_tets_numpy(pts, tz.tets, s, None, tz.hull_faces)
+    return mt.vertices, mt.faces
+
+
+def jitter(v: np.ndarray, f: np.ndarray, rng, share: float = 0.4) -> np.ndarray:
+    """v moved at random by up to `share` of the median edge: a surface with crossing faces."""
+    edge = np.median(np.linalg.norm(v[f[:, 0]] - v[f[:, 1]], axis=1))
+    return v + rng.uniform(-share, share, v.shape) * edge
+
+
+@needs_filter
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_half_edges_and_taubin_are_the_references(seed, monkeypatch):
+    v, f = marching_surface(seed)
+    fast_edges = smoothing.mesh_edges(f, len(v), closed=True)
+    fast = smoothing.taubin(v, f, 3, edges=fast_edges)
+    crease = smoothing.crease_neighbours(v, f, fast_edges)
+    fast_crease = smoothing.taubin(v, f, 2, edges=crease)
+    monkeypatch.setattr(smoothing, "NATIVE", False)
+    edges = smoothing.mesh_edges(f, len(v), closed=True)
+    np.testing.assert_array_equal(fast_edges, edges)
+    assert fast.tobytes() == smoothing.taubin(v, f, 3, edges=edges).tobytes()
+    assert fast_crease.tobytes() == smoothing.taubin(v, f, 2, edges=crease).tobytes()
+
+
+@needs_filter
+def test_half_edges_refuse_what_is_not_a_closed_manifold():
+    f = np.array([[0, 1, 2], [0, 2, 3]], dtype=np.int64)  # open
+    out = np.empty((6, 2), dtype=np.int64)
+    assert smoothing._filter_native.half_edges(f, 4, out) == 1
+    assert smoothing._filter_native.half_edges(np.array([[0, 1, 5]]), 4, np.empty((3, 2), np.int64)) == 1
+    # the reference's answer where the extension refuses: mesh_edges falls back to it
+    np.testing.assert_array_equal(smoothing.mesh_edges(f, 4, closed=True)[:, 0], np.sort(f[:, [0, 1, 2]].ravel()))
+
+
+@needs_filter
+@pytest.mark.parametrize("levels", [1, 2])
+def test_loop_and_midpoint_levels_are_the_references(levels, monkeypatch):
+    v, f = marching_surface(3, n=900)
+    moved = smoothing.taubin(v, f, 1)
+    fast = subdivision.loop_and_midpoint(moved, v, f, levels)
+    monkeypatch.setattr(subdivision, "NATIVE", False)
+    slow = subdivision.loop_and_midpoint(moved, v, f, levels)
+    for a, b in zip(fast, slow, strict=True):
+        assert a.dtype == b.dtype and a.shape == b.shape and a.tobytes() == b.tobytes()
+
+
+@needs_intersect
+@pytest.mark.parametrize("seed", range(6))
+def test_the_short_check_of_marked_faces_is_the_full_checks(seed):
+    """`marked` (few faces marked) against `faces` on surfaces that do cross (vertices moved at random by a
+    fraction of an edge), with random marks (some on crossing faces)."""
+    v, f = marching_surface(seed, n=1200, shape="spheres")
+    rng = np.random.default_rng(seed)
+    v = jitter(v, f, rng)
+    full = self_intersecting_faces(v, f)
+    assert full.any()
+    for share in (0.002, 0.02, 0.1):
+        only = rng.random(len(f)) < share
+        only[np.flatnonzero(full)[: 1 + seed]] = True
+        flags = np.zeros(len(f), np.uint8)
+        status = intersections._intersect_native.marked(v, f, flags, only.view(np.uint8))
+        ref = np.zeros(len(f), np.uint8)
+        assert intersections._intersect_native.faces(v, f, ref, only.view(np.uint8)) == 0
+        assert status == 0
+        np.testing.assert_array_equal(flags, ref)
+        assert ref.any()
+
+
+@needs_intersect
+def test_the_short_check_declines_where_the_grid_is_not_its_first_size(monkeypatch):
+    """A lattice too fine for the dense count (one huge face among tiny ones): undecided, and the public check then
+    runs the full one, whose answer stands."""
+    v, f = marching_surface(4, n=600)
+    big = np.array([[-50.0, -50, -50], [50, -50, 50], [0, 50, 0]])
+    v2 = np.concatenate([v, big])
+    f2 = np.concatenate([f, [[len(v), len(v) + 1, len(v) + 2]]])
+    only = np.zeros(len(f2), bool)
+    only[:3] = True
+    flags = np.zeros(len(f2), np.uint8)
+    assert intersections._intersect_native.marked(v2, f2, flags, only.view(np.uint8)) == 2
+    ref = np.zeros(len(f2), np.uint8)
+    assert intersections._intersect_native.faces(v2, f2, ref, only.view(np.uint8)) == 0
+    np.testing.assert_array_equal(self_intersecting_faces(v2, f2, only), ref.astype(bool))
+
+
+@pytest.mark.parametrize("shape,steps,levels", [("spheres", 3, 1), ("torus", 1, 2), ("spheres", 2, 0)])
+def test_filter_surface_is_the_references(shape, steps, levels, monkeypatch):
+    v, f = marching_surface(5, n=1500, shape=shape)
+    fast = filter_surface(v, f, steps, levels)
+    for module in (smoothing, subdivision, intersections):
+        monkeypatch.setattr(module, "NATIVE", False)
+    slow = filter_surface(v, f, steps, levels)
+    assert fast.restored == slow.restored and fast.gave_up == slow.gave_up
+    assert fast.vertices.tobytes() == slow.vertices.tobytes() and fast.faces.tobytes() == slow.faces.tobytes()
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_restore_crossings_is_the_references(seed, monkeypatch):
+    """Many crossing faces, several rounds of restores (the later rounds take the short check)."""
+    from tetweave_codec.geometry.surface_filter import restore_crossings
+
+    v, f = marching_surface(seed, n=1500, shape="spheres")
+    rng = np.random.default_rng(seed)
+    moved = jitter(v, f, rng, share=0.3 + 0.1 * seed)
+    fast = restore_crossings(moved, v, f)
+    monkeypatch.setattr(intersections, "NATIVE", False)
+    slow = restore_crossings(moved, v, f)
+    assert fast[1:] == slow[1:] and fast[1] > 0
+    assert fast[0].tobytes() == slow[0].tobytes()
+
+
+@pytest.mark.parametrize("path", sorted(glob.glob(str(REPO / "benchmarks/results/files/*/size-5120-sh-auto.tw"))))
+def test_committed_files_decode_to_the_references_bits(path, monkeypatch):
+    """The compiled filter and check against the numpy reference on the committed default files (5 KB: the
+    reference's numpy check takes seconds on the larger ones)."""
+    from tetweave_codec.decoder import decode
+
+    data = Path(path).read_bytes()
+    fast = decode(data)
+    for module in (smoothing, subdivision, intersections):
+        monkeypatch.setattr(module, "NATIVE", False)
+    slow = decode(data)
+    assert fast[0].tobytes() == slow[0].tobytes() and fast[1].tobytes() == slow[1].tobytes()

@@ -1,0 +1,333 @@
+/* Compiled fast path of the decoder's filter (geometry/smoothing.py `taubin`, geometry/subdivision.py
+ * `loop_and_midpoint` on a closed mesh without crease rules): the same binary64 operations in the same order as
+ * the numpy reference (built with -ffp-contract=off, no -ffast-math), so the results are bit for bit the
+ * reference's (tests/test_native.py); the numpy code stays the reference and the fallback (`smoothing.NATIVE`,
+ * `subdivision.NATIVE`, environment TETWEAVE_NATIVE=0).
+ *
+ * half_edges(faces (F,3) int64, num_vertices, out (3F,2) int64) -> 0, or 1 when the faces are not a closed,
+ *     consistently oriented 2-manifold (an index out of range, a half-edge twice or without its twin): the
+ *     half-edges sorted by (first, second), which is `smoothing.mesh_edges(faces, V, closed=True)`.
+ * taubin(vertices (V,3) float64 in/out, edges (E,2) int64, steps, lam, mu) -> 0: `smoothing.taubin`'s numpy steps
+ *     (neighbour sums from 0.0 in the order of `edges`, as np.bincount adds its weights).
+ * loop(vertices (V,3), reference (V,3), faces (F,3), edges (3F,2) = half_edges(faces), out_vertices (V+E,3),
+ *     out_reference (V+E,3), out_faces (4F,3)) -> 0: one Loop level of `vertices` and one midpoint level of
+ *     `reference` on the same faces (subdivision.py's `_apply_level` and `loop_level` for a closed mesh: edge
+ *     e = the e-th half-edge (a, b) with a < b in `edges`' order, its opposite corners the third corners of the
+ *     faces of (a, b) and (b, a)).
+ */
+#define PY_SSIZE_T_CLEAN
+#include <Python.h>
+#include <stdint.h>
+#include <stdlib.h>
+#include <string.h>
+
+#define EDGE_NEAR 0.375
+#define EDGE_FAR 0.125
+#define BETA_VALENCE_3 0.1875
+
+typedef struct {
+    Py_buffer view;
+    int have;
+} Buf;
+
+static int take(PyObject *obj, Buf *b, Py_ssize_t itemsize, Py_ssize_t count, int writable, const char *name) {
+    int flags = PyBUF_C_CONTIGUOUS | (writable ? PyBUF_WRITABLE : 0);
+    if (PyObject_GetBuffer(obj, &b->view, flags) < 0) return -1;
+    b->have = 1;
+    if (b->view.itemsize != itemsize || (count >= 0 && b->view.len != itemsize * count) ||
+        b->view.len % itemsize) {
+        PyErr_Format(PyExc_ValueError, "%s: wrong size or type", name);
+        return -1;
+    }
+    return 0;
+}
+
+static void release(Buf *b, int n) {
+    for (int i = 0; i < n; i++)
+        if (b[i].have) PyBuffer_Release(&b[i].view);
+}
+
+/* Sorted half-edges of a closed mesh: counting sort by first vertex, then each vertex's short list by second. */
+static int sorted_half_edges(const int64_t *f, int64_t nf, int64_t nv, int64_t *out) {
+    int64_t *start = (int64_t *)calloc((size_t)nv + 1, sizeof(int64_t));
+    if (!start) return -1;
+    int status = 0;
+    for (int64_t i = 0; i < 3 * nf; i++) {
+        if (f[i] < 0 || f[i] >= nv) {
+            status = 1;
+            goto done;
+        }
+        start[f[i] + 1]++;
+    }
+    for (int64_t u = 0; u < nv; u++) start[u + 1] += start[u];
+    {
+        int64_t *fill = (int64_t *)malloc(sizeof(int64_t) * ((size_t)nv + 1));
+        if (!fill) {
+            status = -1;
+            goto done;
+        }
+        memcpy(fill, start, sizeof(int64_t) * ((size_t)nv + 1));
+        for (int64_t i = 0; i < nf; i++)
+            for (int k = 0; k < 3; k++) {
+                int64_t u = f[3 * i + k], w = f[3 * i + (k + 1) % 3];
+                int64_t at = fill[u]++;
+                out[2 * at] = u;
+                out[2 * at + 1] = w;
+            }
+        free(fill);
+    }
+    for (int64_t u = 0; u < nv; u++) { /* insertion sort of each vertex's neighbours (a handful) */
+        for (int64_t i = start[u] + 1; i < start[u + 1]; i++) {
+            int64_t w = out[2 * i + 1], j = i - 1;
+            while (j >= start[u] && out[2 * j + 1] > w) {
+                out[2 * (j + 1) + 1] = out[2 * j + 1];
+                j--;
+            }
+            out[2 * (j + 1) + 1] = w;
+        }
+        for (int64_t i = start[u]; i < start[u + 1]; i++) {
+            int64_t w = out[2 * i + 1];
+            if (i > start[u] && out[2 * i - 1] == w) { /* a half-edge twice */
+                status = 1;
+                goto done;
+            }
+            if (w == u) {
+                status = 1;
+                goto done;
+            }
+            /* its twin (w, u) must exist (w's list, sorted or not yet, searched whole) */
+            int found = 0;
+            for (int64_t j = start[w]; j < start[w + 1] && !found; j++) found = out[2 * j + 1] == u;
+            if (!found) {
+                status = 1;
+                goto done;
+            }
+        }
+    }
+done:
+    free(start);
+    return status;
+}
+
+static PyObject *half_edges(PyObject *self, PyObject *args) {
+    PyObject *of, *oo;
+    long long nv;
+    if (!PyArg_ParseTuple(args, "OLO", &of, &nv, &oo)) return NULL;
+    Buf b[2];
+    memset(b, 0, sizeof b);
+    if (take(of, &b[0], 8, -1, 0, "faces") < 0 || b[0].view.len % 24) {
+        if (!PyErr_Occurred()) PyErr_SetString(PyExc_ValueError, "faces: (F,3) int64");
+        release(b, 2);
+        return NULL;
+    }
+    int64_t nf = b[0].view.len / 24;
+    if (take(oo, &b[1], 8, 6 * nf, 1, "out") < 0) {
+        release(b, 2);
+        return NULL;
+    }
+    int status;
+    Py_BEGIN_ALLOW_THREADS;
+    status = nv < 0 ? 1 : sorted_half_edges((const int64_t *)b[0].view.buf, nf, nv, (int64_t *)b[1].view.buf);
+    Py_END_ALLOW_THREADS;
+    release(b, 2);
+    if (status < 0) return PyErr_NoMemory();
+    return PyLong_FromLong(status);
+}
+
+/* sum (V,3) of v[dst] over edges in list order per src, from 0.0 (np.bincount's order) */
+static void neighbour_sums(const double *v, const int64_t *e, int64_t ne, int64_t nv, double *sum) {
+    memset(sum, 0, sizeof(double) * 3 * (size_t)nv);
+    for (int64_t i = 0; i < ne; i++) {
+        const double *p = v + 3 * e[2 * i + 1];
+        double *s = sum + 3 * e[2 * i];
+        s[0] += p[0];
+        s[1] += p[1];
+        s[2] += p[2];
+    }
+}
+
+static PyObject *taubin(PyObject *self, PyObject *args) {
+    PyObject *ov, *oe;
+    int steps;
+    double lam, mu;
+    if (!PyArg_ParseTuple(args, "OOidd", &ov, &oe, &steps, &lam, &mu)) return NULL;
+    Buf b[2];
+    memset(b, 0, sizeof b);
+    if (take(ov, &b[0], 8, -1, 1, "vertices") < 0 || take(oe, &b[1], 8, -1, 0, "edges") < 0) {
+        release(b, 2);
+        return NULL;
+    }
+    if (b[0].view.len % 24 || b[1].view.len % 16) {
+        release(b, 2);
+        PyErr_SetString(PyExc_ValueError, "vertices (V,3) float64, edges (E,2) int64");
+        return NULL;
+    }
+    int64_t nv = b[0].view.len / 24, ne = b[1].view.len / 16;
+    double *v = (double *)b[0].view.buf;
+    const int64_t *e = (const int64_t *)b[1].view.buf;
+    for (int64_t i = 0; i < 2 * ne; i++)
+        if (e[i] < 0 || e[i] >= nv) {
+            release(b, 2);
+            PyErr_SetString(PyExc_ValueError, "edges: index out of range");
+            return NULL;
+        }
+    int status = 0;
+    Py_BEGIN_ALLOW_THREADS;
+    double *sum = (double *)malloc(sizeof(double) * 3 * (size_t)(nv > 0 ? nv : 1));
+    double *deg = (double *)calloc((size_t)(nv > 0 ? nv : 1), sizeof(double));
+    if (!sum || !deg)
+        status = -1;
+    else {
+        for (int64_t i = 0; i < ne; i++) deg[e[2 * i]] += 1.0;
+        for (int s = 0; s < steps; s++)
+            for (int half = 0; half < 2; half++) {
+                double fac = half ? mu : lam;
+                neighbour_sums(v, e, ne, nv, sum);
+                for (int64_t i = 0; i < nv; i++) {
+                    if (!(deg[i] > 0)) continue;
+                    for (int k = 0; k < 3; k++) v[3 * i + k] = v[3 * i + k] + fac * (sum[3 * i + k] / deg[i] - v[3 * i + k]);
+                }
+            }
+    }
+    free(sum);
+    free(deg);
+    Py_END_ALLOW_THREADS;
+    release(b, 2);
+    if (status < 0) return PyErr_NoMemory();
+    return PyLong_FromLong(0);
+}
+
+/* index of half-edge (u, w) in the sorted list (rows of u start at start[u]); -1 if absent */
+static inline int64_t find_half(const int64_t *e, const int64_t *start, int64_t u, int64_t w) {
+    for (int64_t j = start[u]; j < start[u + 1]; j++)
+        if (e[2 * j + 1] == w) return j;
+    return -1;
+}
+
+static PyObject *loop(PyObject *self, PyObject *args) {
+    PyObject *ov, *or, *of, *oe, *oov, *oor, *oof;
+    if (!PyArg_ParseTuple(args, "OOOOOOO", &ov, &or, &of, &oe, &oov, &oor, &oof)) return NULL;
+    Buf b[7];
+    memset(b, 0, sizeof b);
+    if (take(ov, &b[0], 8, -1, 0, "vertices") < 0 || b[0].view.len % 24) goto bad;
+    int64_t nv = b[0].view.len / 24;
+    if (take(or, &b[1], 8, 3 * nv, 0, "reference") < 0) goto bad;
+    if (take(of, &b[2], 8, -1, 0, "faces") < 0 || b[2].view.len % 24) goto bad;
+    int64_t nf = b[2].view.len / 24, nh = 3 * nf, ne = nh / 2;
+    if (take(oe, &b[3], 8, 2 * nh, 0, "edges") < 0) goto bad;
+    if (take(oov, &b[4], 8, 3 * (nv + ne), 1, "out_vertices") < 0) goto bad;
+    if (take(oor, &b[5], 8, 3 * (nv + ne), 1, "out_reference") < 0) goto bad;
+    if (take(oof, &b[6], 8, 12 * nf, 1, "out_faces") < 0) goto bad;
+    const double *v = (const double *)b[0].view.buf, *r = (const double *)b[1].view.buf;
+    const int64_t *f = (const int64_t *)b[2].view.buf, *e = (const int64_t *)b[3].view.buf;
+    double *out_v = (double *)b[4].view.buf, *out_r = (double *)b[5].view.buf;
+    int64_t *out_f = (int64_t *)b[6].view.buf;
+    for (int64_t i = 0; i < 2 * nh; i++)
+        if (e[i] < 0 || e[i] >= nv) {
+            PyErr_SetString(PyExc_ValueError, "edges: index out of range");
+            goto bad;
+        }
+    for (int64_t i = 0; i < 3 * nf; i++)
+        if (f[i] < 0 || f[i] >= nv) {
+            PyErr_SetString(PyExc_ValueError, "faces: index out of range");
+            goto bad;
+        }
+    int status = 0;
+    Py_BEGIN_ALLOW_THREADS;
+    int64_t *start = (int64_t *)calloc((size_t)nv + 1, sizeof(int64_t));
+    int64_t *edge_id = (int64_t *)malloc(sizeof(int64_t) * (size_t)(nh > 0 ? nh : 1)); /* per half-edge row */
+    int64_t *opp = (int64_t *)malloc(sizeof(int64_t) * (size_t)(nh > 0 ? nh : 1));     /* third corner per row */
+    double *sum = (double *)malloc(sizeof(double) * 3 * (size_t)(nv > 0 ? nv : 1));
+    double *deg = (double *)calloc((size_t)(nv > 0 ? nv : 1), sizeof(double));
+    if (!start || !edge_id || !opp || !sum || !deg) {
+        status = -1;
+        goto done;
+    }
+    for (int64_t i = 0; i < nh; i++) start[e[2 * i] + 1]++;
+    for (int64_t u = 0; u < nv; u++) start[u + 1] += start[u];
+    /* edge ids: the rows (a, b) with a < b, in order; a row (b, a) gets its twin's id */
+    int64_t count = 0;
+    for (int64_t i = 0; i < nh; i++)
+        if (e[2 * i] < e[2 * i + 1]) edge_id[i] = count++;
+    if (count != ne) {
+        status = 1;
+        goto done;
+    }
+    for (int64_t i = 0; i < nh; i++)
+        if (e[2 * i] > e[2 * i + 1]) {
+            int64_t twin = find_half(e, start, e[2 * i + 1], e[2 * i]);
+            if (twin < 0) {
+                status = 1;
+                goto done;
+            }
+            edge_id[i] = edge_id[twin];
+        }
+    /* each face's half-edges: their rows give the new vertices; the face's third corner is the row's opposite */
+    for (int64_t i = 0; i < nf; i++) {
+        const int64_t *fc = f + 3 * i;
+        int64_t m[3];
+        for (int k = 0; k < 3; k++) {
+            int64_t row = find_half(e, start, fc[k], fc[(k + 1) % 3]);
+            if (row < 0) {
+                status = 1;
+                goto done;
+            }
+            opp[row] = fc[(k + 2) % 3];
+            m[k] = nv + edge_id[row];
+        }
+        int64_t a = fc[0], bb = fc[1], c = fc[2], mab = m[0], mbc = m[1], mca = m[2];
+        int64_t *o = out_f + 12 * i;
+        int64_t faces4[12] = {a, mab, mca, mab, bb, mbc, mca, mbc, c, mab, mbc, mca};
+        memcpy(o, faces4, sizeof faces4);
+    }
+    /* old vertices: keep * v + beta * (sum of neighbours from 0.0 in row order) */
+    neighbour_sums(v, e, nh, nv, sum);
+    for (int64_t i = 0; i < nh; i++) deg[e[2 * i]] += 1.0;
+    for (int64_t i = 0; i < nv; i++) {
+        double k = deg[i];
+        double beta = k > 3 ? 3.0 / (8.0 * (k > 1.0 ? k : 1.0)) : BETA_VALENCE_3;
+        if (k < 3) beta = 0.0;
+        double keep = 1.0 - k * beta;
+        for (int d = 0; d < 3; d++) {
+            out_v[3 * i + d] = keep * v[3 * i + d] + beta * sum[3 * i + d];
+            out_r[3 * i + d] = r[3 * i + d];
+        }
+    }
+    /* edge vertices */
+    for (int64_t i = 0; i < nh; i++) {
+        int64_t a = e[2 * i], bb = e[2 * i + 1];
+        if (a > bb) continue;
+        int64_t twin = find_half(e, start, bb, a);
+        int64_t c = opp[i], d = opp[twin], id = nv + edge_id[i];
+        for (int k = 0; k < 3; k++) {
+            double ends = v[3 * a + k] + v[3 * bb + k];
+            out_v[3 * id + k] = EDGE_NEAR * ends + EDGE_FAR * (v[3 * c + k] + v[3 * d + k]);
+            out_r[3 * id + k] = 0.5 * (r[3 * a + k] + r[3 * bb + k]);
+        }
+    }
+done:
+    free(start);
+    free(edge_id);
+    free(opp);
+    free(sum);
+    free(deg);
+    Py_END_ALLOW_THREADS;
+    release(b, 7);
+    if (status < 0) return PyErr_NoMemory();
+    return PyLong_FromLong(status);
+bad:
+    if (!PyErr_Occurred()) PyErr_SetString(PyExc_ValueError, "loop: wrong array shapes");
+    release(b, 7);
+    return NULL;
+}
+
+static PyMethodDef methods[] = {
+    {"half_edges", half_edges, METH_VARARGS, "Sorted half-edges of a closed mesh (smoothing.mesh_edges closed)."},
+    {"taubin", taubin, METH_VARARGS, "Taubin steps in place (smoothing.taubin's numpy arithmetic)."},
+    {"loop", loop, METH_VARARGS, "One Loop level and one midpoint level of a closed mesh (subdivision.py)."},
+    {NULL, NULL, 0, NULL},
+};
+
+static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "_filter_native", NULL, -1, methods};
+
+PyMODINIT_FUNC PyInit__filter_native(void) { return PyModule_Create(&module); }
