@@ -709,15 +709,14 @@ def _load_rows(paths: list[str]) -> tuple[dict, list[dict]]:
     return today, refined
 
 
-def config_key(r: dict) -> str:
-    """A configuration across points: base fraction class, source, rule, levels, gain, kappa, even."""
-    frac = "50%" if r["fraction"] < 0.6 else "70%"
+def config_key(r: dict, with_base: bool = True) -> str:
+    """A configuration across points: base fraction class, source, rule, levels, gain (L > 1), kappa, even."""
+    frac = "50%" if r["fraction"] < 0.6 else "70%" if r["fraction"] < 0.78 else "85%"
     even = " +even" if r["even"] else ""
+    gain = f", gain {r['gain']:g}" if r["levels"] > 1 else ""
     dist = r.get("distortion", "l2")
-    return (
-        f"base {frac}, {r['source']}, {r['rule']}, L={r['levels']}, gain {r['gain']:g}, {dist} kappa {r['kappa']:g}"
-        f"{even}"
-    )
+    what = f"{r['source']}, {r['rule']}, L={r['levels']}{gain}, {dist} kappa {r['kappa']:g}{even}"
+    return f"base {frac}, {what}" if with_base else what
 
 
 def cmd_table(args) -> None:
@@ -759,18 +758,24 @@ def cmd_table(args) -> None:
             + "; ".join(f"{m} median {np.median(v):.2f}, worst {max(v):.2f}" for m, v in sorted(per_mesh.items()))
             + ".\n"
         )
-    groups = {}
-    for r in refined:
-        groups.setdefault(config_key(r), {})[(r["mesh"], r["budget"])] = r["ratio"]
-    print("| configuration | points | median ratio | worst ratio | worst mesh median |")
-    print("|---|---|---|---|---|")
-    for key, pts in sorted(groups.items(), key=lambda kv: (-len(kv[1]), np.median(list(kv[1].values())))):
-        mesh_med = {}
-        for (mesh, _), v in pts.items():
-            mesh_med.setdefault(mesh, []).append(v)
-        worst_mesh = max(float(np.median(v)) for v in mesh_med.values())
-        vals = list(pts.values())
-        print(f"| {key} | {len(vals)} | {np.median(vals):.3f} | {max(vals):.3f} | {worst_mesh:.3f} |")
+    for with_base in (True, False):
+        groups = {}
+        for r in refined:
+            pts = groups.setdefault(config_key(r, with_base), {})
+            key = (r["mesh"], r["budget"])
+            pts[key] = min(pts.get(key, np.inf), r["ratio"])  # without the base fraction: the better base
+        title = "configuration" if with_base else "configuration, the better base fraction per point"
+        print(f"\n| {title} | points | median ratio | worst ratio | worst mesh median |")
+        print("|---|---|---|---|---|")
+        for key, pts in sorted(groups.items(), key=lambda kv: (-len(kv[1]), np.median(list(kv[1].values())))):
+            if len(pts) < args.min_points:
+                continue
+            mesh_med = {}
+            for (mesh, _), v in pts.items():
+                mesh_med.setdefault(mesh, []).append(v)
+            worst_mesh = max(float(np.median(v)) for v in mesh_med.values())
+            vals = list(pts.values())
+            print(f"| {key} | {len(vals)} | {np.median(vals):.3f} | {max(vals):.3f} | {worst_mesh:.3f} |")
 
 
 def main(argv=None) -> None:
@@ -809,6 +814,7 @@ def main(argv=None) -> None:
     cx.add_argument("--out", required=True)
     tb = sub.add_parser("table", help="markdown tables of result files")
     tb.add_argument("results", nargs="+")
+    tb.add_argument("--min-points", type=int, default=1, help="list configurations run on at least this many")
     args = ap.parse_args(argv)
     commands = {"today": cmd_today, "run": cmd_run, "analyse": cmd_analyse, "contexts": cmd_contexts}
     (commands | {"table": cmd_table})[args.cmd](args)
