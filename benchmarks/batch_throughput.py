@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tetweave_codec.benchmarks.batch import DEFAULT_MESHES, select_meshes
+from tetweave_codec.benchmarks.common import DEFAULT_MESHES, select_meshes
 
 # name -> (--jobs, --threads, Ray)
 CONFIGS = {"jobs1x2": (1, 2, False), "jobs2x1": (2, 1, False), "ray2x1": (2, 1, True)}

@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from tetweave_codec.benchmarks.batch import script_meshes, script_parser
+from tetweave_codec.benchmarks.common import script_meshes, script_parser
 from tetweave_codec.cli.common import parse_count
 from tetweave_codec.decoder import decode, decode_detailed
 from tetweave_codec.encoder import pack_result

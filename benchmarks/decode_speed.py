@@ -150,7 +150,7 @@ def main(argv: list[str] | None = None) -> int:
         # Before numpy is imported (lazily, below; the CLI subprocesses inherit them): pools read these at start-up.
         for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
             os.environ[var] = str(args.threads)
-    from tetweave_codec.benchmarks.batch import find_meshes
+    from tetweave_codec.bench.batch import find_meshes
 
     wanted = {m.strip() for m in args.meshes.split(",") if m.strip()}
     meshes = [m for m in find_meshes(args.meshes_dir) if not wanted or m.stem in wanted]

@@ -18,7 +18,7 @@ from dataclasses import replace
 
 import torch
 
-from tetweave_codec.benchmarks.batch import script_meshes, script_parser
+from tetweave_codec.benchmarks.common import script_meshes, script_parser
 from tetweave_codec.cli.common import parse_count
 from tetweave_codec.fit.config import QUALITY, FitConfig, LearningRates, Weights
 from tetweave_codec.fit.loop import fit

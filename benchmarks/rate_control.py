@@ -15,7 +15,7 @@ import time
 
 import torch
 
-from tetweave_codec.benchmarks.batch import script_meshes, script_parser
+from tetweave_codec.benchmarks.common import script_meshes, script_parser
 from tetweave_codec.cli.common import parse_count
 from tetweave_codec.encoder import encode
 from tetweave_codec.errors import InputError

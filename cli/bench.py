@@ -14,8 +14,8 @@ from pathlib import Path
 
 import click
 
-from tetweave_codec.benchmarks.baselines import DECIMATE_BITS, DECIMATE_KEEP, DRACO_BITS, MLAB_BITS, MLAB_KEEP
-from tetweave_codec.benchmarks.methods import DECIMATE_DRACO, DRACO, FAMILIES, MLAB_DRACO, TETWEAVE
+from tetweave_codec.bench.baselines import DECIMATE_BITS, DECIMATE_KEEP, DRACO_BITS, MLAB_BITS, MLAB_KEEP
+from tetweave_codec.bench.methods import DECIMATE_DRACO, DRACO, FAMILIES, MLAB_DRACO, TETWEAVE
 from tetweave_codec.cli.batch import jobs_option, ray_option, split_ray
 from tetweave_codec.cli.common import (
     configure_torch,
@@ -313,16 +313,17 @@ def bench(
     self-intersections); sizes are compared at matched Chamfer distance. A failing mesh or method is recorded
     in its rows and the batch goes on.
     """
-    from tetweave_codec.benchmarks import report
-    from tetweave_codec.benchmarks.baselines import (
+    from tetweave_codec.bench import report
+    from tetweave_codec.bench.baselines import (
         MLAB_MISSING,
         decimate_draco_methods,
         draco_methods,
         mlab_available,
         mlab_draco_methods,
     )
-    from tetweave_codec.benchmarks.batch import find_meshes, run_batch
-    from tetweave_codec.benchmarks.methods import TetweaveMethod
+    from tetweave_codec.bench.batch import find_meshes, run_batch
+    from tetweave_codec.bench.methods import TetweaveMethod
+    from tetweave_codec.bench.pictures import plot_rate_distortion, side_by_side
     from tetweave_codec.metrics.common import MetricOptions
 
     paths = find_meshes(mesh_dir)
@@ -388,11 +389,11 @@ def bench(
         jobs = [
             (
                 f"rd_{result.name}.png",
-                lambda p: report.plot_rate_distortion(result.rows, p, title=result.name),
+                lambda p: plot_rate_distortion(result.rows, p, title=result.name),
             )
         ]
         if pictures:
-            jobs.append((f"side_by_side_{result.name}.png", lambda p: report.side_by_side(result, result.rows, p)))
+            jobs.append((f"side_by_side_{result.name}.png", lambda p: side_by_side(result, result.rows, p)))
         for name, job in jobs:
             try:
                 if job(out_dir / name):
@@ -406,7 +407,7 @@ def bench(
     say(f"{len(paths)} mesh(es) x {len(method_list)} method setting(s) -> {out_dir}")
     use_ray, ray_address, _ = split_ray(ray_value, ())
     if TETWEAVE in methods and (use_ray or jobs is not None):  # the fits first, in parallel, through the runner
-        from tetweave_codec.benchmarks.batch import precompute
+        from tetweave_codec.bench.parallel import precompute
         from tetweave_codec.runner.executors import default_jobs, make_executor, require_ray
 
         if use_ray:

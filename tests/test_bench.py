@@ -12,8 +12,8 @@ import pytest
 from click.testing import CliRunner
 from scipy.spatial import cKDTree
 
-from tetweave_codec.benchmarks import baselines, report
-from tetweave_codec.benchmarks.baselines import (
+from tetweave_codec.bench import baselines, pictures, report
+from tetweave_codec.bench.baselines import (
     DRACO_COMPRESSION_LEVEL,
     MLAB_MISSING,
     DecimateDracoMethod,
@@ -25,8 +25,8 @@ from tetweave_codec.benchmarks.baselines import (
     mlab_decimate,
     mlab_draco_methods,
 )
-from tetweave_codec.benchmarks.batch import COLUMNS, find_meshes, mesh_labels, run_batch, run_mesh, run_method
-from tetweave_codec.benchmarks.methods import Method, TetweaveMethod
+from tetweave_codec.bench.batch import COLUMNS, find_meshes, mesh_labels, run_batch, run_mesh, run_method
+from tetweave_codec.bench.methods import Method, TetweaveMethod
 from tetweave_codec.cli.main import main
 from tetweave_codec.meshio import save_mesh
 from tetweave_codec.metrics.common import MetricOptions
@@ -253,7 +253,7 @@ def test_comparable_rows_pick_the_closest_size():
         _row("tetweave", "mid", 1e-3, 4000),
         _row("tetweave", "big", 1e-3, 16000),
     ]
-    chosen = {r["family"]: r["setting"] for r in report.comparable_rows(rows)}
+    chosen = {r["family"]: r["setting"] for r in pictures.comparable_rows(rows)}
     assert chosen == {"tetweave": "mid", "draco": "q8", "decimate+draco": "b"}
 
 
@@ -380,7 +380,7 @@ def test_bench_command_end_to_end_with_draco(mesh_dir, tmp_path):
         # the plot draws both families' curves in their colours (matplotlib's tab:blue and tab:orange)
         plot = _rgb(out / f"rd_{mesh}.png")
         for family in ("draco", "decimate+draco"):
-            colour = matplotlib.colors.to_rgb(report.CURVE_STYLE[family][0])
+            colour = matplotlib.colors.to_rgb(pictures.CURVE_STYLE[family][0])
             assert _count_near(plot, colour) > 50, (mesh, family)
         # the pictures show shaded surfaces (grey, neither white nor black) in every one of their 3 panels
         picture = _rgb(out / f"side_by_side_{mesh}.png")
@@ -468,7 +468,7 @@ def test_tetweave_size_method_through_the_batch():
 
 def test_picture_cameras_see_three_faces_of_a_box_and_close_up_on_its_surface():
     v, f = _mesh(manifold3d.Manifold.cube([1.6, 1.6, 1.6], center=True))
-    overview, close_up = report.choose_cameras(v, f)
+    overview, close_up = pictures.choose_cameras(v, f)
     direction = overview.eye[0].numpy() / np.linalg.norm(overview.eye[0].numpy())
     assert np.all(np.abs(direction) > 0.25)  # oblique: three faces in view, not one flat side
     # the close-up looks from the same eye at a point of the box (where the creases are)
@@ -485,7 +485,7 @@ def test_bench_tetweave_encodes_through_the_runner(mesh_dir):
     bytes (those of an in-process encode at the same thread count) and times, and other methods are untouched."""
     import torch
 
-    from tetweave_codec.benchmarks.batch import Precomputed, precompute
+    from tetweave_codec.bench.parallel import Precomputed, precompute
     from tetweave_codec.runner.executors import LocalExecutor
 
     paths = find_meshes(mesh_dir)
@@ -506,7 +506,7 @@ def test_bench_runner_passes_auto_degree_and_grid_layout(mesh_dir):
     options read back as the method's, so its bytes are those of the in-process encode."""
     import torch
 
-    from tetweave_codec.benchmarks.batch import precompute
+    from tetweave_codec.bench.parallel import precompute
     from tetweave_codec.runner.executors import LocalExecutor
 
     paths = find_meshes(mesh_dir)[:1]

@@ -139,20 +139,3 @@ def test_closest_on_degenerate_triangles_stays_on_them():
     cp, bary = closest_on_triangles(np.array([[1.5, 1.0, 0.0], [1.0, 1.0, 1.0]]), tri)
     np.testing.assert_allclose(cp, [[1.5, 0, 0], [0, 0, 0]], atol=1e-12)
     assert np.all(np.isfinite(bary)) and np.allclose(bary.sum(1), 1.0)
-
-
-def test_closest_speed_benchmark_runs(tmp_path, capsys):
-    """benchmarks/closest_speed.py on one small decoded file: a table row, a ratio, distances that agree."""
-    if closest.fcpw_module() is None:
-        pytest.skip("fcpw is not installed (the `fast` extra)")
-    from tetweave_codec.benchmarks import closest_speed
-    from tetweave_codec.encoder import encode
-
-    ball = trimesh.creation.icosphere(subdivisions=2)
-    result = encode(ball.vertices, ball.faces, points=256, quality="fast", iters=4, measure=False, device="cpu")
-    (tmp_path / "ball.tw").write_bytes(result.data)
-    assert closest_speed.main(["--files", str(tmp_path), "--repeats", "1", "--queries", "200"]) == 0
-    out = capsys.readouterr().out
-    row = next(line for line in out.splitlines() if line.startswith("| ball |"))
-    assert float(row.split("|")[-2]) < 1e-6  # the two trees' distances agree
-    assert "median" in out

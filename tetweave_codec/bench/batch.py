@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tetweave_codec.benchmarks.methods import TETWEAVE, Method
+from tetweave_codec.bench.methods import TETWEAVE, Method
 from tetweave_codec.metrics.common import MetricOptions
 from tetweave_codec.metrics.fidelity import prepare_reference
 from tetweave_codec.metrics.summary import evaluate, mesh_report
@@ -99,42 +99,6 @@ def find_meshes(path: str | Path) -> list[Path]:
     if not found:
         raise InputError(f"{path}: no mesh files ({', '.join(sorted(MESH_FORMATS))})")
     return found
-
-
-# The development meshes, beside the repository (../shared/meshes); the speed and bitstream scripts default to them.
-DEFAULT_MESHES = Path(__file__).resolve().parent.parent.parent / "shared" / "meshes"
-
-
-def select_meshes(path: str | Path, only: str = "") -> list[Path]:
-    """`find_meshes(path)`, kept to the comma-separated file stems of `only` when given."""
-    paths = find_meshes(path)
-    if only:
-        keep = set(only.split(","))
-        paths = [p for p in paths if p.stem in keep]
-    return paths
-
-
-def script_parser(description: str):
-    """The command line shared by the benchmark scripts: --meshes, --only, --quality, --threads."""
-    import argparse
-
-    from tetweave_codec.fit.config import QUALITY
-
-    ap = argparse.ArgumentParser(description=description, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--meshes", type=Path, default=DEFAULT_MESHES)
-    ap.add_argument("--only", default="", help="comma-separated mesh stems to run (default: all)")
-    ap.add_argument("--quality", default="default", choices=list(QUALITY))
-    ap.add_argument("--threads", type=int, default=0, help="torch CPU threads (0: torch's default)")
-    return ap
-
-
-def script_meshes(args) -> list[Path]:
-    """Apply --threads and return the meshes of --meshes / --only (see `script_parser`)."""
-    if args.threads:
-        import torch
-
-        torch.set_num_threads(args.threads)
-    return select_meshes(args.meshes, args.only)
 
 
 def mesh_labels(paths: Sequence[Path]) -> list[str]:
@@ -282,90 +246,3 @@ def run_batch(
         if on_mesh is not None:
             on_mesh(result)
     return rows
-
-
-class Precomputed(Method):
-    """A method whose encodes already ran (in parallel through tetweave_codec.runner, see `precompute`): `encode`
-    returns the bytes made for this mesh, found by the mesh's content (`runner.work.mesh_sha256`); labels,
-    decoding and info are the wrapped method's. The worker's encode time counts as reused seconds (the look-up
-    itself takes milliseconds), so the row states the encode's whole cost."""
-
-    def __init__(self, method: Method, results: dict[str, dict]) -> None:
-        self.method = method
-        self.family = method.family
-        self.results = results
-        self._worker_seconds = 0.0
-
-    @property
-    def setting(self) -> str:
-        return self.method.setting
-
-    @property
-    def curve(self) -> str:
-        return self.method.curve
-
-    def params(self) -> dict:
-        return self.method.params()
-
-    def encode(self, vertices: np.ndarray, faces: np.ndarray) -> bytes:
-        from tetweave_codec.errors import TetweaveError
-        from tetweave_codec.runner.work import mesh_sha256
-
-        self._worker_seconds = 0.0
-        result = self.results.get(mesh_sha256(vertices, faces))
-        if result is None:
-            raise TetweaveError("this mesh was not encoded by the runner")
-        if result["status"] != "ok":
-            raise TetweaveError(result.get("error") or "failed in its worker")
-        self._worker_seconds = float(result["seconds"])
-        self.method.points_used = result.get("points_target", "")
-        return result["data"]
-
-    def decode(self, data: bytes) -> tuple[np.ndarray, np.ndarray]:
-        return self.method.decode(data)
-
-    def info(self, data: bytes) -> dict:
-        return self.method.info(data)
-
-    def reused_seconds(self) -> float:
-        return self._worker_seconds + self.method.reused_seconds()
-
-
-def precompute(paths: Sequence[Path], methods: Sequence[Method], executor, threads: int, progress=None) -> list:
-    """Run every tetweave method's encode of every mesh through `executor` (local processes or Ray) at once, and
-    return `methods` with each tetweave method wrapped in `Precomputed`; other methods are returned unchanged.
-    Workers use `threads` torch threads; fits use the methods' own options and seeds, so the bytes are those of
-    the in-process run at the same thread count."""
-    from tetweave_codec.benchmarks.methods import TetweaveMethod
-    from tetweave_codec.runner.work import EncodeOptions, Task, encode_file
-
-    say = progress or (lambda _msg: None)
-    fits = [m for m in methods if isinstance(m, TetweaveMethod)]
-    tasks = []
-    for path in paths:
-        for k, m in enumerate(fits):
-            options = EncodeOptions(
-                points=m.points,
-                sh_degree="auto" if m.sh_degree is None else str(m.sh_degree),
-                layout=m.layout,
-                holes=m.holes,
-                quality=m.quality,
-                iters=m.iters,
-                size=m.size,
-                device=str(m.device),
-                seed=m.seed,
-                threads=threads,
-                measure=False,  # the benchmark measures the decoded mesh itself
-            )
-            tasks.append(Task(str(path), "", f"{k}", options.as_dict(), None))
-    results: list[dict[str, dict]] = [{} for _ in fits]
-    try:
-        for done, (task, result) in enumerate(executor.run(encode_file, tasks), 1):
-            if "mesh_sha256" in result:
-                results[int(task.key)][result["mesh_sha256"]] = result
-            outcome = f"{result['bytes']:,} bytes" if result["status"] == "ok" else f"FAILED: {result['error']}"
-            say(f"tetweave encodes {done}/{len(tasks)}: {Path(task.input).name} {fits[int(task.key)].name}: {outcome}")
-    finally:
-        executor.close()
-    wrapped = {id(m): Precomputed(m, results[k]) for k, m in enumerate(fits)}
-    return [wrapped.get(id(m), m) for m in methods]

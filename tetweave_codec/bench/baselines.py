@@ -27,7 +27,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from tetweave_codec.benchmarks.methods import DECIMATE_DRACO, DRACO, MLAB_DRACO, Method
+from tetweave_codec.bench.methods import DECIMATE_DRACO, DRACO, MLAB_DRACO, Method
 
 # Every bit depth from 8 to 16: the full mesh's front at high rates runs through each of them (fandisk at CD 5e-5
 # lies between 12 and 13 bits).

@@ -1,0 +1,42 @@
+"""The command line shared by the maintained benchmark scripts: which meshes (--meshes, --only), --quality and
+--threads. The development meshes lie beside the repository (../shared/meshes); the scripts default to them."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from tetweave_codec.bench.batch import find_meshes
+
+DEFAULT_MESHES = Path(__file__).resolve().parent.parent.parent / "shared" / "meshes"
+
+
+def select_meshes(path: str | Path, only: str = "") -> list[Path]:
+    """`find_meshes(path)`, kept to the comma-separated file stems of `only` when given."""
+    paths = find_meshes(path)
+    if only:
+        keep = set(only.split(","))
+        paths = [p for p in paths if p.stem in keep]
+    return paths
+
+
+def script_parser(description: str):
+    """The command line shared by the benchmark scripts: --meshes, --only, --quality, --threads."""
+    import argparse
+
+    from tetweave_codec.fit.config import QUALITY
+
+    ap = argparse.ArgumentParser(description=description, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--meshes", type=Path, default=DEFAULT_MESHES)
+    ap.add_argument("--only", default="", help="comma-separated mesh stems to run (default: all)")
+    ap.add_argument("--quality", default="default", choices=list(QUALITY))
+    ap.add_argument("--threads", type=int, default=0, help="torch CPU threads (0: torch's default)")
+    return ap
+
+
+def script_meshes(args) -> list[Path]:
+    """Apply --threads and return the meshes of --meshes / --only (see `script_parser`)."""
+    if args.threads:
+        import torch
+
+        torch.set_num_threads(args.threads)
+    return select_meshes(args.meshes, args.only)
