@@ -103,7 +103,7 @@ def _progress_lines(every_s: float = PROGRESS_LINE_SECONDS):
     help="Where the points come from: fit = placed by the fit, then snapped to the position grid; grid = the "
     "cells of a lattice in a band around the input, whose s the fit then tunes (cheaper points, no placement: "
     "smaller files on evenly detailed scans, larger on most other meshes, half the encode time, slower decode; "
-    "benchmarks/results/grid_layout.md); best = both, keeping the lower error (--size) or the smaller file "
+    "docs/measurements/grid_layout.md); best = both, keeping the lower error (--size) or the smaller file "
     "(--max-error), at the time of both. With grid, --points sets the cell size; grid and best choose their own "
     "quantization.",
 )

@@ -106,7 +106,7 @@ def test_full_campaign_10000_cases():
 
 @functools.cache
 def _encoded(path: str, size: int) -> bytes:
-    """A rate-controlled encode of a shared mesh, once per test session (both backend tests decode it)."""
+    """A rate-controlled encode of a shared mesh, once per test run (both backend tests decode it)."""
     from tetweave_codec import encode
     from tetweave_codec.meshio import load_mesh
 

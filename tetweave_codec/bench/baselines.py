@@ -42,7 +42,7 @@ DECIMATE_BITS = (11, 14)
 # the best classical bytes at the file's Chamfer distance): 7 fractions (0.5 / 1 / 2 / 5 / 10 / 20 / 50 %) 0.92 /
 # 0.71 / 0.89 / 0.65 and 1.09 / 1.25 / 1.49 / 2.57, four per octave 1.07 / 0.87 / 0.91 / 0.91 and 1.08 / 1.26 /
 # 1.72 / 2.80, eight per octave below 14 % 1.07 / 1.00 / 0.91 / 0.91 and 1.11 / 1.31 / 1.72 / 2.78, where
-# neighbouring front points are 5-8 % apart in Chamfer distance (benchmarks/results/README.md, "How dense the
+# neighbouring front points are 5-8 % apart in Chamfer distance (docs/measurements/bench_history.md, "How dense the
 # classical sweep is").
 MLAB_KEEP = tuple(float(f"{0.5 * 2 ** (-k / 8):.3g}") for k in range(54))
 MLAB_BITS = (9, 10, 11, 12)

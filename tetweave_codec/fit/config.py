@@ -31,13 +31,13 @@ class Schedule:
     # 0.5 (0.2 / 0.4): 2.98 / 3.85 / 10.03; start 0.75 with settle at 0.45: 3.07 / 3.99 / 10.45. 16K points:
     # spot 5.06 -> 4.32; stanford-bunny seed 0 19.66 -> 27.41 but seed 1 (Chamfer) 6.29e-4 -> 5.17e-4 -- the
     # bunny's hole caps (2-3 % of its area, 60-78 % of the mesh-to-input distance) vary from fit to fit. With
-    # `relocate` moving active points too, three events at 0.1 / 0.2 / 0.3 (benchmarks/results/relocation.md).
+    # `relocate` moving active points too, three events at 0.1 / 0.2 / 0.3 (docs/measurements/relocation.md).
     resample_at: tuple[float, ...] = (0.1, 0.2, 0.3)
     start_fraction: float = 1.0
     settle_at: float = 0.4
     # Fraction of the target point count each resampling also moves among the active points and their
     # neighbours, the cheapest to remove first (fit.relocate); 0 = only passive points move (the paper). See
-    # benchmarks/results/relocation.md.
+    # docs/measurements/relocation.md.
     relocate: float = 0.15
 
 
@@ -67,7 +67,7 @@ class Weights:
     # were not measured). One run at 10 KB, bytes x Chamfer relative to the fit before (these weights at
     # 1 / 25 / 0.1, the 3-D term at the vertices), CPU time in brackets: images off and area samples 0.875 (0.77x)
     # spot, 0.958 (0.76x) fandisk, 0.873 (0.75x) igea, 0.932 (0.75x) stanford-bunny; images off alone 1.01 spot,
-    # 1.10 fandisk (benchmarks/results/encode_speed.md).
+    # 1.10 fandisk (docs/measurements/encode_speed.md).
     mask: float = 0.0
     depth: float = 0.0
     normals: float = 0.0
@@ -202,7 +202,7 @@ class FitConfig:
     # Whether the main stage fits through the decoder's filter too (else only the late stage does, on the fixed
     # points). Off with `creases` (encoder.Job): the creases of a surface whose points move come and go at every
     # iteration; fandisk, bytes x Chamfer against no smoothing, 5 / 10 / 20 KB: both stages 0.99 / 0.88 / 0.93,
-    # the late stage alone 0.88 / 0.89 / 0.92 at less CPU (benchmarks/results/creases.md, session 14).
+    # the late stage alone 0.88 / 0.89 / 0.92 at less CPU (docs/measurements/creases.md, 2026-12-02).
     main_filter: bool = True
 
     def stage_filter(self, main: bool) -> tuple[int, int]:
@@ -215,12 +215,12 @@ class FitConfig:
 
 # Taubin steps of `tetweave encode` (container v2; on CAD parts encoder.input_defaults takes
 # crease-preserving steps instead, encoder.CREASED_SMOOTHING). Measured with benchmarks/fit_ab.py
-# (benchmarks/results/smoothing.md): bytes x Chamfer against no smoothing, 1 step: spot 0.82-0.87, stanford-bunny
+# (docs/measurements/smoothing.md): bytes x Chamfer against no smoothing, 1 step: spot 0.82-0.87, stanford-bunny
 # 0.94-0.99, igea 0.96-1.01, fandisk 0.95-1.06 (16 cases, median 0.96); 2 steps helped spot more (0.78) but cost
 # igea 11 % and fandisk 5 %.
 DEFAULT_SMOOTHING = 1
 # Loop levels of `tetweave encode` after the smoothing (none on CAD parts). Measured with
-# benchmarks/fit_ab.py (benchmarks/results/subdivision.md): bytes x Chamfer against the smoothing alone, one level:
+# benchmarks/fit_ab.py (docs/measurements/subdivision.md): bytes x Chamfer against the smoothing alone, one level:
 # spot 0.66-0.82, stanford-bunny 0.89-0.95, igea 0.91-0.98 (9 cases, median 0.90) for 1.2-1.8x the CPU time; two
 # levels gained 0.4-3 % more for 2-3x the time again.
 DEFAULT_SUBDIVISION = 1

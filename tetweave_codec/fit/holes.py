@@ -7,7 +7,7 @@ input and is not the centroid itself: the face is off the input, beyond its rim;
 neighbours far from the input (a cap that sags into the shape). Removing them leaves the input's holes open; where
 a vertex would be left with two fans, its whole fan goes too (a few rounds), and failing that its faces stay, so
 the result is a 2-manifold with boundary. `encoder.Job.with_holes` picks between plain and grown caps by the
-decoded mesh's Chamfer distance (benchmarks/results/holes.md).
+decoded mesh's Chamfer distance (docs/measurements/holes.md).
 """
 
 from __future__ import annotations

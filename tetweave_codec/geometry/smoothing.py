@@ -4,7 +4,7 @@ A marching-tets surface is piecewise flat with its vertices on tet edges; `k` Ta
 one shrinking step lambda > 0 then one inflating step mu < -lambda of the uniform umbrella operator) move every
 vertex towards the mean of its neighbours and back, a low-pass filter that keeps the volume. The fit optimizes s
 and c *through* the filter (fit.step.extract), so the filtered surface is what matches the input: on smooth
-shapes it reaches the same Chamfer distance with fewer points (benchmarks/results/smoothing.md).
+shapes it reaches the same Chamfer distance with fewer points (docs/measurements/smoothing.md).
 
 Exact and reproducible by an independent decoder (IEEE 754 binary64, one rounding per operation as written):
 

@@ -4,7 +4,7 @@ A marching-tets surface is piecewise flat: on a curved input its error falls onl
 spacing, and its normals jump at every edge. One level of Loop subdivision (Loop, 1987) splits each triangle into
 four and moves every vertex by fixed weights of its neighbours, a smooth surface of the same control vertices. The
 fit optimizes s and c *through* the subdivision (fit.step.extract), so the subdivided surface is what matches the
-input: on smooth shapes the same Chamfer distance takes fewer points (benchmarks/results/subdivision.md).
+input: on smooth shapes the same Chamfer distance takes fewer points (docs/measurements/subdivision.md).
 
 Exact and reproducible by an independent decoder (IEEE 754 binary64, one rounding per operation as written), for
 one level of vertices (V,3) and faces (F,3):
