@@ -14,9 +14,15 @@ Per file, median of `--repeats` runs after one warm-up, with the clock of `--clo
   total (input-frame transform included);
 * "s pred": the part of unpack spent in the s prediction (`predict.reconstruct`: neighbour search, weights and
   the sequential pass), timed on its own;
-* "CLI": `tetweave decode FILE -o OUT.ply` as a fresh process, from process start to the file written (wall
-  clock, whatever `--clock` says), so interpreter start-up and imports count;
+* "CLI": `tetweave decode FILE -o OUT.ply` as a fresh process, from process start to the file written (with
+  `--clock cpu` the process's user + system CPU time, else wall clock), so interpreter start-up and imports count;
 * ratios of unpack, total and CLI to the Delaunay time of the same file.
+
+`--committed` times the default (filtered: Taubin smoothing, Loop subdivision) files the benchmark committed,
+benchmarks/results/files/MESH/size-BYTES-sh-auto.tw, instead of the cache. `--levels control,smoothed,full` times
+each decode level (`tetweave decode --level`) of every file, API and CLI, against the same file's Delaunay time
+measured in the same run. `--memory` adds the peak resident memory (ru_maxrss) of one `tetweave decode` process
+per file and level.
 
 `--native both` times every file twice in turn, with the compiled fast paths (formats/_native.c,
 geometry/_mt_native.c, geometry/_intersect_native.c) and with the numpy/Python reference code alone
@@ -26,6 +32,8 @@ geometry/_mt_native.c, geometry/_intersect_native.c) and with the numpy/Python r
     python -m tetweave_codec.benchmarks.decode_speed --threads 1
     python -m tetweave_codec.benchmarks.decode_speed --sizes 40k --meshes fandisk,spot --repeats 9 --no-encode
     python -m tetweave_codec.benchmarks.decode_speed --threads 1 --no-encode --sizes 10k,40k --clock cpu --native both
+    python -m tetweave_codec.benchmarks.decode_speed --threads 1 --committed --sizes 10k,40k --clock cpu \
+        --levels control,smoothed,full --memory
 """
 
 from __future__ import annotations
@@ -40,6 +48,8 @@ import time
 from pathlib import Path
 
 DEFAULT_SIZES = "5k,10k,20k,40k"
+LEVELS = ("control", "smoothed", "full")
+COMMITTED = Path(__file__).resolve().parent / "results" / "files"  # MESH/size-BYTES-sh-auto.tw
 DEFAULT_MESH_DIR = Path(__file__).resolve().parent.parent.parent / "shared" / "meshes"
 CACHE_ENV = "TETWEAVE_DECODE_FILES"
 
@@ -75,31 +85,39 @@ def ensure_file(mesh: Path, size: str, cache: Path, encode: bool) -> Path | None
     return path
 
 
+def committed_file(mesh: Path, size: int) -> Path | None:
+    """The committed default file of `mesh` at `size` bytes (None when there is none)."""
+    path = COMMITTED / mesh.stem / f"size-{size}-sh-auto.tw"
+    return path if path.exists() else None
+
+
 def set_native(on: bool) -> None:
     """Switch the compiled fast paths of the decoder on (where built) or off (the numpy/Python reference)."""
     from tetweave_codec.formats import predict
-    from tetweave_codec.geometry import intersections, marching_tets
+    from tetweave_codec.geometry import intersections, marching_tets, smoothing, subdivision
 
     predict.NATIVE = on and predict._native is not None
     marching_tets.NATIVE = on and marching_tets._mt_native is not None
     intersections.NATIVE = on and intersections._intersect_native is not None
+    smoothing.NATIVE = subdivision.NATIVE = on and smoothing._filter_native is not None
 
 
-def time_api(data: bytes, repeats: int, clock: str) -> dict:
-    """Median seconds per stage of `decode_detailed` and of the s prediction alone over `repeats` runs."""
+def time_api(data: bytes, repeats: int, clock: str, level: str = "full") -> dict:
+    """Median seconds per stage of `decode_detailed` at `level` and of the s prediction alone over `repeats`
+    runs."""
     from tetweave_codec.decoder import decode_detailed
     from tetweave_codec.formats import predict
     from tetweave_codec.formats.common import FLAG_S_PREDICTED
 
     timer = time.process_time if clock == "cpu" else time.perf_counter
-    res = decode_detailed(data)  # warm-up: imports, first-touch allocations
+    res = decode_detailed(data, level=level)  # warm-up: imports, first-touch allocations
     tw = res.container
     predicted = getattr(tw, "version", 1) == 2 and tw.flags & FLAG_S_PREDICTED
     residual = predict.residuals(tw.cells, tw.s_sym) if predicted else None
     runs = []
     for _ in range(repeats):
         start = timer()
-        res = decode_detailed(data, clock=timer)
+        res = decode_detailed(data, clock=timer, level=level)
         total = timer() - start
         row = dict(res.seconds, total=total)
         if predicted:
@@ -112,19 +130,43 @@ def time_api(data: bytes, repeats: int, clock: str) -> dict:
     return med
 
 
-def time_cli(path: Path, repeats: int, native: bool = True) -> float:
-    """Median wall seconds of `tetweave decode path -o tmp.ply` in a fresh process (start to file written)."""
+def time_cli(path: Path, repeats: int, native: bool = True, level: str = "full", clock: str = "wall") -> float:
+    """Median seconds of `tetweave decode path -o tmp.ply --level level` in a fresh process, start to file
+    written: wall clock, or (clock "cpu") the process's user + system CPU time."""
+    import resource
+
     env = dict(os.environ, TETWEAVE_NATIVE="1" if native else "0")
     times = []
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "out.ply"
-        cmd = [sys.executable, "-m", "tetweave_codec.cli.main", "decode", str(path), "-o", str(out)]
+        cmd = [sys.executable, "-m", "tetweave_codec.cli.main", "decode", str(path), "-o", str(out), "--level", level]
         subprocess.run(cmd, check=True, capture_output=True, env=env)  # warm-up: file system caches
         for _ in range(repeats):
+            before = resource.getrusage(resource.RUSAGE_CHILDREN)
             start = time.perf_counter()
             subprocess.run(cmd, check=True, capture_output=True, env=env)
-            times.append(time.perf_counter() - start)
+            wall = time.perf_counter() - start
+            after = resource.getrusage(resource.RUSAGE_CHILDREN)
+            cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+            times.append(cpu if clock == "cpu" else wall)
     return statistics.median(times)
+
+
+def peak_memory(path: Path, native: bool = True, level: str = "full") -> float:
+    """Peak resident memory (MB, ru_maxrss) of one `tetweave decode path -o tmp.ply --level level` process."""
+    env = dict(os.environ, TETWEAVE_NATIVE="1" if native else "0")
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp) / "out.ply"
+        code = (
+            "import resource, sys\n"
+            "from tetweave_codec.cli.main import main\n"
+            f"try:\n    main(['decode', {str(path)!r}, '-o', {str(out)!r}, '--level', {level!r}])\n"
+            "except SystemExit:\n    pass\n"
+            "print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss, file=sys.stderr)\n"
+        )
+        done = subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, text=True, env=env)
+    kb = float(done.stderr.strip().splitlines()[-1])  # Linux: KB (macOS would say bytes)
+    return kb / 1024.0
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -137,6 +179,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--files", type=Path, default=None,
                         help=f"cached .tw files (default: ${CACHE_ENV} or ~/.cache/tetweave/decode_speed)")  # fmt: skip
     parser.add_argument("--no-encode", action="store_true", help="time only the cached files; encode none")
+    parser.add_argument("--committed", action="store_true",
+                        help="time the committed default files (benchmarks/results/files), not the cache")  # fmt: skip
+    parser.add_argument("--levels", default="full",
+                        help="comma-separated decode levels: control, smoothed, full (default: full)")  # fmt: skip
+    parser.add_argument("--memory", action="store_true",
+                        help="also the peak resident memory of a decode process per file and level")  # fmt: skip
     parser.add_argument("--repeats", type=int, default=5, help="runs per file; medians (default: 5)")
     parser.add_argument("--cli-repeats", type=int, default=5, help="CLI runs per file, 0: none (default: 5)")
     parser.add_argument("--threads", type=int, default=0,
@@ -146,6 +194,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--native", choices=("on", "off", "both"), default="on",
                         help="compiled fast paths on, off (numpy/Python reference) or both (default: on)")  # fmt: skip
     args = parser.parse_args(argv)
+    levels = [x.strip() for x in args.levels.split(",") if x.strip()]
+    if not levels or any(x not in LEVELS for x in levels):
+        parser.error(f"--levels: choose from {', '.join(LEVELS)}")
     if args.threads:
         # Before numpy is imported (lazily, below; the CLI subprocesses inherit them): pools read these at start-up.
         for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
@@ -155,34 +206,43 @@ def main(argv: list[str] | None = None) -> int:
     wanted = {m.strip() for m in args.meshes.split(",") if m.strip()}
     meshes = [m for m in find_meshes(args.meshes_dir) if not wanted or m.stem in wanted]
     cache = args.files or default_cache()
-    print(f"# decode speed ({args.clock} clock for the API stages, wall for the CLI): real v2 files from {cache}, "
-          f"median of {args.repeats} (CLI {args.cli_repeats})")  # fmt: skip
-    header = ["file", "bytes", "points", "faces", "code", "unpack ms", "s pred ms", "Delaunay ms", "marching tets ms",
-              "smoothing ms", "total ms", "unpack / Delaunay", "total / Delaunay", "CLI ms",
-              "CLI / Delaunay"]  # fmt: skip
+    source = "the committed default files (benchmarks/results/files)" if args.committed else str(cache)
+    print(f"# decode speed ({args.clock} clock for the API stages and the CLI): real v2 files from {source}, "
+          f"median of {args.repeats} (CLI {args.cli_repeats}); ratios against the same file's Delaunay (TetGen) "
+          "time in the same run")  # fmt: skip
+    header = ["file", "level", "bytes", "points", "faces", "code", "unpack ms", "s pred ms", "Delaunay ms",
+              "marching tets ms", "filter ms", "total ms", "unpack / Delaunay", "total / Delaunay", "CLI ms",
+              "CLI / Delaunay"] + (["peak MB"] if args.memory else [])  # fmt: skip
     print("| " + " | ".join(header) + " |")
     print("|---|" + "|".join("---:" for _ in header[1:]) + "|")
-    for label, _ in sorted(set(args.sizes), key=lambda item: item[1]):
+    for label, size in sorted(set(args.sizes), key=lambda item: item[1]):
         for mesh in meshes:
-            path = ensure_file(mesh, label, cache, not args.no_encode)
+            if args.committed:
+                path = committed_file(mesh, size)
+            else:
+                path = ensure_file(mesh, label, cache, not args.no_encode)
             if path is None:
                 continue
             data = path.read_bytes()
-            for native in {"on": (True,), "off": (False,), "both": (False, True)}[args.native]:
+            name = f"{mesh.stem}_{label}" if args.committed else path.stem
+            natives = {"on": (True,), "off": (False,), "both": (False, True)}[args.native]
+            for level, native in [(lv, nat) for lv in levels for nat in natives]:
                 set_native(native)
-                t = time_api(data, args.repeats, args.clock)
+                t = time_api(data, args.repeats, args.clock, level)
                 dl = t["delaunay"]
-                cli = time_cli(path, args.cli_repeats, native) if args.cli_repeats else float("nan")
+                cli = time_cli(path, args.cli_repeats, native, level, args.clock) if args.cli_repeats else float("nan")
                 s_pred = f"{1e3 * t['s_pred']:.1f}" if "s_pred" in t else "-"
                 ms = {
                     k: f"{1e3 * t.get(k, 0.0):.1f}"
                     for k in ("unpack", "delaunay", "marching_tets", "smoothing", "total")
                 }
-                row = [path.stem, f"{len(data):,}", f"{t['points']:,}", f"{t['faces']:,}",
+                row = [name, level, f"{len(data):,}", f"{t['points']:,}", f"{t['faces']:,}",
                        "compiled" if native else "reference", ms["unpack"], s_pred, ms["delaunay"],
                        ms["marching_tets"], ms["smoothing"], ms["total"], f"{t['unpack'] / dl:.2f}",
                        f"{t['total'] / dl:.2f}",
                        f"{1e3 * cli:.0f}", f"{cli / dl:.1f}"]  # fmt: skip
+                if args.memory:
+                    row.append(f"{peak_memory(path, native, level):.0f}")
                 print("| " + " | ".join(row) + " |", flush=True)
     return 0
 
