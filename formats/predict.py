@@ -38,7 +38,7 @@ try:  # the compiled fast path (optional; identical output)
 except ImportError:  # not built (no C compiler at install time): the numpy/Python code below
     _native = None
 # Whether causal_neighbors and reconstruct use the compiled path. Measured (fandisk 40 KB, 18K points, CPU time):
-# see README.md, "Decode".
+# see docs/measurements/decode_native.md.
 NATIVE = _native is not None and os.environ.get("TETWEAVE_NATIVE", "1") != "0"
 
 K_NEIGHBORS = 8

@@ -1,6 +1,7 @@
 """tetweave: mesh compression by fitting a TetWeave representation.
 
-Data flow: mesh -> targets -> fit -> container (encode), container -> Delaunay -> marching tets -> mesh (decode).
+Data flow: mesh -> prepared input -> fit -> container (encode), container -> Delaunay -> marching tets -> filter -> mesh
+(decode).
 Submodules are imported lazily so that `import tetweave_codec` stays cheap for the CLI.
 """
 

@@ -54,7 +54,7 @@ try:  # the compiled topology (optional; identical output)
     from tetweave_codec.geometry import _mt_native
 except ImportError:  # not built: the numpy code below
     _mt_native = None
-# Whether marching_tets_numpy and check_manifold use the compiled path. Measured: README.md, "Decode".
+# Whether marching_tets_numpy and check_manifold use the compiled path. Measured: docs/measurements/decode_native.md.
 NATIVE = _mt_native is not None and os.environ.get("TETWEAVE_NATIVE", "1") != "0"
 
 # Local edges of a tet as pairs of local vertex indices: edge e connects TET_EDGES[e, 0] and TET_EDGES[e, 1].
