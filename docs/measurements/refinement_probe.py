@@ -622,7 +622,7 @@ def cmd_analyse(args) -> None:
     base = load_base(args.base, inp, args.source)
     row0 = {"kind": "analyse", "mesh": args.mesh, "base": Path(args.base).name, "base_bytes": base.file_bytes}
     for levels in [int(x) for x in args.levels.split(",")]:
-        cfg = Config(args.source, args.rule, levels, args.gain, args.kappa)
+        cfg = Config(args.source, args.rule, levels, args.gain, args.kappa, args.even)
         for name, step in (("zero_rate", ZERO_RATE_STEP), ("exact", IDEAL_STEP)):
             try:
                 res = encode_layer(inp, base, cfg, step)
@@ -635,7 +635,7 @@ def cmd_analyse(args) -> None:
             print(json.dumps(row), flush=True)
             with open(args.out, "a") as fh:
                 fh.write(json.dumps(row) + "\n")
-    cfg = Config(args.source, args.rule, args.curve_levels, args.gain, args.kappa)
+    cfg = Config(args.source, args.rule, args.curve_levels, args.gain, args.kappa, args.even)
     for frac in [float(x) for x in args.fractions.split(",")]:
         target = int(base.file_bytes * (1 + frac))
         try:
@@ -805,6 +805,7 @@ def main(argv=None) -> None:
     an.add_argument("--gain", type=float, default=0.7)
     an.add_argument("--kappa", type=float, default=0.05)
     an.add_argument("--curve-levels", type=int, default=2)
+    an.add_argument("--even", action="store_true")
     an.add_argument("--fractions", default="0.25,0.5,1,2")
     an.add_argument("--out", required=True)
     cx = sub.add_parser("contexts", help="entropy of level 1's significance map under contexts and an oracle")
