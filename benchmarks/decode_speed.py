@@ -153,7 +153,9 @@ def time_cli(path: Path, repeats: int, native: bool = True, level: str = "full",
 
 
 def peak_memory(path: Path, native: bool = True, level: str = "full") -> float:
-    """Peak resident memory (MB, ru_maxrss) of one `tetweave decode path -o tmp.ply --level level` process."""
+    """Peak resident memory (MB) of one `tetweave decode path -o tmp.ply --level level` process: VmHWM of
+    /proc/self/status where there is one (Linux; reset by exec, where ru_maxrss keeps the forking parent's peak),
+    else ru_maxrss."""
     env = dict(os.environ, TETWEAVE_NATIVE="1" if native else "0")
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "out.ply"
@@ -162,11 +164,14 @@ def peak_memory(path: Path, native: bool = True, level: str = "full") -> float:
             "from tetweave_codec.cli.main import main\n"
             f"try:\n    main(['decode', {str(path)!r}, '-o', {str(out)!r}, '--level', {level!r}])\n"
             "except SystemExit:\n    pass\n"
-            "print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss, file=sys.stderr)\n"
+            "try:\n"
+            "    kb = next(int(x.split()[1]) for x in open('/proc/self/status') if x.startswith('VmHWM:'))\n"
+            "except (OSError, StopIteration):\n"
+            "    kb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss\n"
+            "print(kb, file=sys.stderr)\n"
         )
         done = subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, text=True, env=env)
-    kb = float(done.stderr.strip().splitlines()[-1])  # Linux: KB (macOS would say bytes)
-    return kb / 1024.0
+    return float(done.stderr.strip().splitlines()[-1]) / 1024.0  # KB (macOS' ru_maxrss would be bytes)
 
 
 def main(argv: list[str] | None = None) -> int:
