@@ -561,7 +561,7 @@ def cmd_today(args) -> None:
 
 
 def cmd_run(args) -> None:
-    inp = Input(f"../shared/meshes/{args.mesh}.ply")
+    inp = None  # loaded on the first configuration not in the output file yet
     configs = []
     for source in args.source.split(","):
         for rule in args.rule.split(","):
@@ -581,6 +581,8 @@ def cmd_run(args) -> None:
         for cfg in configs:
             if (Path(base_path).name, *asdict(cfg).values()) in done:
                 continue
+            if inp is None:
+                inp = Input(f"../shared/meshes/{args.mesh}.ply")
             if cfg.source not in bases:
                 bases[cfg.source] = load_base(base_path, inp, cfg.source)
             base = bases[cfg.source]
@@ -711,7 +713,7 @@ def _load_rows(paths: list[str]) -> tuple[dict, list[dict]]:
 
 def config_key(r: dict, with_base: bool = True) -> str:
     """A configuration across points: base fraction class, source, rule, levels, gain (L > 1), kappa, even."""
-    frac = "50%" if r["fraction"] < 0.6 else "70%" if r["fraction"] < 0.78 else "85%"
+    frac = "35%" if r["fraction"] < 0.4 else "50%" if r["fraction"] < 0.6 else "70%" if r["fraction"] < 0.78 else "85%"
     even = " +even" if r["even"] else ""
     gain = f", gain {r['gain']:g}" if r["levels"] > 1 else ""
     dist = r.get("distortion", "l2")
