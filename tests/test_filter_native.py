@@ -1,6 +1,6 @@
-"""The decoder filter's compiled paths give the numpy references' bits: Taubin steps and sorted half-edges
-(geometry/_filter_native.c), Loop and midpoint levels, the short self-intersection check of few marked faces
-(geometry/_intersect_native.c `marked`), and whole decodes of the committed files."""
+"""The decoder filter's compiled paths give the numpy references' bits: Taubin steps and Loop + midpoint levels
+(geometry/_filter_native.c), the short self-intersection check of few marked faces (geometry/_intersect_native.c
+`marked`), restores, and whole decodes of the committed files."""
 
 from __future__ import annotations
 
@@ -43,27 +43,30 @@ def jitter(v: np.ndarray, f: np.ndarray, rng, share: float = 0.4) -> np.ndarray:
 
 @needs_filter
 @pytest.mark.parametrize("seed", [0, 1, 2])
-def test_half_edges_and_taubin_are_the_references(seed, monkeypatch):
+def test_taubin_is_the_references(seed, monkeypatch):
     v, f = marching_surface(seed)
-    fast_edges = smoothing.mesh_edges(f, len(v), closed=True)
-    fast = smoothing.taubin(v, f, 3, edges=fast_edges)
-    crease = smoothing.crease_neighbours(v, f, fast_edges)
+    edges = smoothing.mesh_edges(f, len(v), closed=True)
+    fast = smoothing.taubin(v, f, 3, edges=edges)
+    crease = smoothing.crease_neighbours(v, f, edges)
     fast_crease = smoothing.taubin(v, f, 2, edges=crease)
     monkeypatch.setattr(smoothing, "NATIVE", False)
-    edges = smoothing.mesh_edges(f, len(v), closed=True)
-    np.testing.assert_array_equal(fast_edges, edges)
     assert fast.tobytes() == smoothing.taubin(v, f, 3, edges=edges).tobytes()
     assert fast_crease.tobytes() == smoothing.taubin(v, f, 2, edges=crease).tobytes()
 
 
 @needs_filter
-def test_half_edges_refuse_what_is_not_a_closed_manifold():
-    f = np.array([[0, 1, 2], [0, 2, 3]], dtype=np.int64)  # open
-    out = np.empty((6, 2), dtype=np.int64)
-    assert smoothing._filter_native.half_edges(f, 4, out) == 1
-    assert smoothing._filter_native.half_edges(np.array([[0, 1, 5]]), 4, np.empty((3, 2), np.int64)) == 1
-    # the reference's answer where the extension refuses: mesh_edges falls back to it
-    np.testing.assert_array_equal(smoothing.mesh_edges(f, 4, closed=True)[:, 0], np.sort(f[:, [0, 1, 2]].ravel()))
+def test_loop_refuses_what_is_not_a_closed_manifold():
+    """An open mesh or a repeated half-edge: status 1 and the reference's result from loop_and_midpoint."""
+    native = smoothing._filter_native
+    v = np.random.default_rng(0).normal(size=(5, 3))
+    for f in (np.array([[0, 1, 2], [0, 2, 3]]), np.array([[0, 1, 2], [0, 1, 2], [0, 2, 1], [0, 2, 1]])):
+        half = np.ascontiguousarray(smoothing.mesh_edges(f, len(v), closed=True))
+        size = len(v) + len(half) // 2
+        out = np.empty((size, 3)), np.empty((size, 3)), np.empty((4 * len(f), 3), dtype=np.int64)
+        assert native.loop(v, v, f, half, *out) == 1
+        fast = subdivision.loop_and_midpoint(v, v, f, 1)
+        ref = subdivision._refine(v, f, 1, midpoint=False)
+        assert fast[0].tobytes() == ref[0].tobytes() and np.array_equal(fast[2], ref[1])
 
 
 @needs_filter

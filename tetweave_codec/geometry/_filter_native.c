@@ -4,16 +4,15 @@
  * reference's (tests/test_native.py); the numpy code stays the reference and the fallback (`smoothing.NATIVE`,
  * `subdivision.NATIVE`, environment TETWEAVE_NATIVE=0).
  *
- * half_edges(faces (F,3) int64, num_vertices, out (3F,2) int64) -> 0, or 1 when the faces are not a closed,
- *     consistently oriented 2-manifold (an index out of range, a half-edge twice or without its twin): the
- *     half-edges sorted by (first, second), which is `smoothing.mesh_edges(faces, V, closed=True)`.
  * taubin(vertices (V,3) float64 in/out, edges (E,2) int64, steps, lam, mu) -> 0: `smoothing.taubin`'s numpy steps
  *     (neighbour sums from 0.0 in the order of `edges`, as np.bincount adds its weights).
- * loop(vertices (V,3), reference (V,3), faces (F,3), edges (3F,2) = half_edges(faces), out_vertices (V+E,3),
- *     out_reference (V+E,3), out_faces (4F,3)) -> 0: one Loop level of `vertices` and one midpoint level of
- *     `reference` on the same faces (subdivision.py's `_apply_level` and `loop_level` for a closed mesh: edge
- *     e = the e-th half-edge (a, b) with a < b in `edges`' order, its opposite corners the third corners of the
- *     faces of (a, b) and (b, a)).
+ * loop(vertices (V,3), reference (V,3), faces (F,3), edges (3F,2) = smoothing.mesh_edges(faces, V, closed=True),
+ *     out_vertices (V+E,3), out_reference (V+E,3), out_faces (4F,3)) -> 0: one Loop level of `vertices` and one
+ *     midpoint level of `reference` on the same faces (subdivision.py's `_apply_level` and `loop_level` for a
+ *     closed mesh: edge e = the e-th half-edge (a, b) with a < b in `edges`' order, its opposite corners the
+ *     third corners of the faces of (a, b) and (b, a)); 1 when the faces are not a closed, consistently oriented
+ *     2-manifold (a half-edge twice, one without its twin or not in `edges`): nothing written, the caller runs
+ *     the reference.
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
@@ -21,6 +20,8 @@
 #include <stdlib.h>
 #include <string.h>
 
+/* with no half-edge twice, nh / 2 rows (a, b) with a < b and a twin for every row (b, a) with b > a, the rows
+ * pair up one to one: every half-edge has its twin */
 #define EDGE_NEAR 0.375
 #define EDGE_FAR 0.125
 #define BETA_VALENCE_3 0.1875
@@ -45,93 +46,6 @@ static int take(PyObject *obj, Buf *b, Py_ssize_t itemsize, Py_ssize_t count, in
 static void release(Buf *b, int n) {
     for (int i = 0; i < n; i++)
         if (b[i].have) PyBuffer_Release(&b[i].view);
-}
-
-/* Sorted half-edges of a closed mesh: counting sort by first vertex, then each vertex's short list by second. */
-static int sorted_half_edges(const int64_t *f, int64_t nf, int64_t nv, int64_t *out) {
-    int64_t *start = (int64_t *)calloc((size_t)nv + 1, sizeof(int64_t));
-    if (!start) return -1;
-    int status = 0;
-    for (int64_t i = 0; i < 3 * nf; i++) {
-        if (f[i] < 0 || f[i] >= nv) {
-            status = 1;
-            goto done;
-        }
-        start[f[i] + 1]++;
-    }
-    for (int64_t u = 0; u < nv; u++) start[u + 1] += start[u];
-    {
-        int64_t *fill = (int64_t *)malloc(sizeof(int64_t) * ((size_t)nv + 1));
-        if (!fill) {
-            status = -1;
-            goto done;
-        }
-        memcpy(fill, start, sizeof(int64_t) * ((size_t)nv + 1));
-        for (int64_t i = 0; i < nf; i++)
-            for (int k = 0; k < 3; k++) {
-                int64_t u = f[3 * i + k], w = f[3 * i + (k + 1) % 3];
-                int64_t at = fill[u]++;
-                out[2 * at] = u;
-                out[2 * at + 1] = w;
-            }
-        free(fill);
-    }
-    for (int64_t u = 0; u < nv; u++) { /* insertion sort of each vertex's neighbours (a handful) */
-        for (int64_t i = start[u] + 1; i < start[u + 1]; i++) {
-            int64_t w = out[2 * i + 1], j = i - 1;
-            while (j >= start[u] && out[2 * j + 1] > w) {
-                out[2 * (j + 1) + 1] = out[2 * j + 1];
-                j--;
-            }
-            out[2 * (j + 1) + 1] = w;
-        }
-        for (int64_t i = start[u]; i < start[u + 1]; i++) {
-            int64_t w = out[2 * i + 1];
-            if (i > start[u] && out[2 * i - 1] == w) { /* a half-edge twice */
-                status = 1;
-                goto done;
-            }
-            if (w == u) {
-                status = 1;
-                goto done;
-            }
-            /* its twin (w, u) must exist (w's list, sorted or not yet, searched whole) */
-            int found = 0;
-            for (int64_t j = start[w]; j < start[w + 1] && !found; j++) found = out[2 * j + 1] == u;
-            if (!found) {
-                status = 1;
-                goto done;
-            }
-        }
-    }
-done:
-    free(start);
-    return status;
-}
-
-static PyObject *half_edges(PyObject *self, PyObject *args) {
-    PyObject *of, *oo;
-    long long nv;
-    if (!PyArg_ParseTuple(args, "OLO", &of, &nv, &oo)) return NULL;
-    Buf b[2];
-    memset(b, 0, sizeof b);
-    if (take(of, &b[0], 8, -1, 0, "faces") < 0 || b[0].view.len % 24) {
-        if (!PyErr_Occurred()) PyErr_SetString(PyExc_ValueError, "faces: (F,3) int64");
-        release(b, 2);
-        return NULL;
-    }
-    int64_t nf = b[0].view.len / 24;
-    if (take(oo, &b[1], 8, 6 * nf, 1, "out") < 0) {
-        release(b, 2);
-        return NULL;
-    }
-    int status;
-    Py_BEGIN_ALLOW_THREADS;
-    status = nv < 0 ? 1 : sorted_half_edges((const int64_t *)b[0].view.buf, nf, nv, (int64_t *)b[1].view.buf);
-    Py_END_ALLOW_THREADS;
-    release(b, 2);
-    if (status < 0) return PyErr_NoMemory();
-    return PyLong_FromLong(status);
 }
 
 /* sum (V,3) of v[dst] over edges in list order per src, from 0.0 (np.bincount's order) */
@@ -243,7 +157,14 @@ static PyObject *loop(PyObject *self, PyObject *args) {
         status = -1;
         goto done;
     }
-    for (int64_t i = 0; i < nh; i++) start[e[2 * i] + 1]++;
+    for (int64_t i = 0; i < nh; i++) {
+        start[e[2 * i] + 1]++;
+        /* sorted rows: a repeated half-edge sits next to its copy; out of order means not `mesh_edges` */
+        if (i > 0 && (e[2 * i] < e[2 * i - 2] || (e[2 * i] == e[2 * i - 2] && e[2 * i + 1] <= e[2 * i - 1]))) {
+            status = 1;
+            goto done;
+        }
+    }
     for (int64_t u = 0; u < nv; u++) start[u + 1] += start[u];
     /* edge ids: the rows (a, b) with a < b, in order; a row (b, a) gets its twin's id */
     int64_t count = 0;
@@ -322,7 +243,6 @@ bad:
 }
 
 static PyMethodDef methods[] = {
-    {"half_edges", half_edges, METH_VARARGS, "Sorted half-edges of a closed mesh (smoothing.mesh_edges closed)."},
     {"taubin", taubin, METH_VARARGS, "Taubin steps in place (smoothing.taubin's numpy arithmetic)."},
     {"loop", loop, METH_VARARGS, "One Loop level and one midpoint level of a closed mesh (subdivision.py)."},
     {NULL, NULL, 0, NULL},

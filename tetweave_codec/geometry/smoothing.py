@@ -38,7 +38,7 @@ try:  # the compiled fast path of the numpy steps below (optional; bit-identical
     from tetweave_codec.geometry import _filter_native
 except ImportError:  # not built: the numpy code
     _filter_native = None
-# geometry/_filter_native.c for `taubin` (numpy) and `mesh_edges(closed=True)`; TETWEAVE_NATIVE=0: the numpy code
+# geometry/_filter_native.c for `taubin` (numpy arrays); TETWEAVE_NATIVE=0: the numpy code
 NATIVE = _filter_native is not None and os.environ.get("TETWEAVE_NATIVE", "1") != "0"
 
 TAUBIN_LAMBDA = 0.5
@@ -66,10 +66,6 @@ def mesh_edges(faces: Any, num_vertices: int, closed: bool = False) -> Any:
         key = torch.unique(e[:, 0] * n + e[:, 1])
         return torch.stack([key // n, key % n], 1)
     faces = np.asarray(faces, dtype=np.int64)
-    if closed and NATIVE:  # the same rows (the extension checks that they are every half-edge once, with its twin)
-        half = np.empty((3 * len(faces), 2), dtype=np.int64)
-        if _filter_native.half_edges(np.ascontiguousarray(faces), n, half) == 0:
-            return half
     e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
     if closed:
         key = np.sort(e[:, 0] * n + e[:, 1])

@@ -200,8 +200,8 @@ def _native_levels(vertices, reference, faces, levels: int):
     for _ in range(levels):
         if len(f) == 0:
             break
-        half = np.empty((3 * len(f), 2), dtype=np.int64)
-        if native.half_edges(f, len(v), half) != 0:
+        half = np.ascontiguousarray(mesh_edges(f, len(v), closed=True))
+        if len(half) != 3 * len(f):
             return None
         size = len(v) + len(half) // 2
         nv, nr, nf = np.empty((size, 3)), np.empty((size, 3)), np.empty((4 * len(f), 3), dtype=np.int64)
