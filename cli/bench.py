@@ -15,6 +15,7 @@ from pathlib import Path
 import click
 
 from tetweave_codec.bench.baselines import DECIMATE_BITS, DECIMATE_KEEP, DRACO_BITS, MLAB_BITS, MLAB_KEEP
+from tetweave_codec.bench.batch import ADAPTIVE, SWEEPS
 from tetweave_codec.bench.methods import DECIMATE_DRACO, DRACO, FAMILIES, MLAB_DRACO, TETWEAVE
 from tetweave_codec.cli.batch import jobs_option, ray_option, split_ray
 from tetweave_codec.cli.common import (
@@ -28,6 +29,13 @@ from tetweave_codec.cli.common import (
 from tetweave_codec.errors import TetweaveError
 from tetweave_codec.geometry.sh import SH_DEGREE_MAX
 from tetweave_codec.meshio import write_bytes_atomic
+
+ADAPTIVE_NOTE = (
+    "Classical settings: the adaptive sweep (`--sweep adaptive`) measured, on each curve, only the settings around "
+    "each tetweave file's Chamfer distance; rows with a Chamfer distance alone were measured for it only, the two "
+    "settings around each tetweave point on each family's front carry every metric. `--sweep full` measures every "
+    "setting."
+)
 
 
 def _joined(values) -> str:
@@ -178,6 +186,7 @@ def _command_line(p: dict) -> str:
         args += ["--decimate", _joined(p["keep"]), "--decimate-bits", _joined(p["decimate_bits"])]
     if MLAB_DRACO in methods:
         args += ["--mlab", _joined(p["mlab_keep"]), "--mlab-bits", _joined(p["mlab_bits"])]
+    args += ["--sweep", p["sweep"]] if any(m != TETWEAVE for m in methods) else []
     args += ["--samples", str(p["samples"]), "--seed", str(p["seed"])]
     args += [] if p["pictures"] else ["--no-pictures"]
     args += ["--threads", str(p["threads"])] if p["threads"] else []
@@ -271,6 +280,14 @@ def _command_line(p: dict) -> str:
     help="mlab+draco: Draco quantization bits after decimation, comma-separated.",
 )
 @click.option(
+    "--sweep",
+    type=click.Choice(SWEEPS),
+    default=ADAPTIVE,
+    help="Classical settings measured: adaptive measures, on each curve of --draco-bits, --decimate and --mlab, "
+    "only those around each tetweave file's Chamfer distance (the sizes at matched error are the full sweep's "
+    "while error and bytes are monotone along a curve; every setting without tetweave); full measures all of them.",
+)
+@click.option(
     "--samples",
     type=click.IntRange(min=1000),
     default=200_000,
@@ -298,6 +315,7 @@ def bench(
     decimate_bits: list[int],
     mlab_keep: list[float],
     mlab_bits: list[int],
+    sweep: str,
     samples: int,
     seed: int,
     pictures: bool,
@@ -324,6 +342,7 @@ def bench(
     from tetweave_codec.bench.batch import find_meshes, run_batch
     from tetweave_codec.bench.methods import TetweaveMethod
     from tetweave_codec.bench.pictures import plot_rate_distortion, side_by_side
+    from tetweave_codec.bench.sweep import adaptive_sweep  # noqa: F401  (loaded now; batch.run_mesh uses it)
     from tetweave_codec.metrics.common import MetricOptions
 
     paths = find_meshes(mesh_dir)
@@ -381,6 +400,7 @@ def bench(
     command = _command_line(ctx.params)
     rows: list[dict] = []
     images: dict[str, list[str]] = {}
+    notes = [ADAPTIVE_NOTE] if sweep == ADAPTIVE and TETWEAVE in methods and len(method_list) > 0 else []
 
     def on_mesh(result) -> None:
         rows.extend(result.rows)
@@ -402,7 +422,7 @@ def bench(
                 say(f"{result.name}: could not write {name}: {type(exc).__name__}: {exc}")
         images[result.name] = names
         report.write_csv(rows, out_dir / "results.csv")
-        report.write_summary(rows, out_dir / "summary.md", command=command, images=images)
+        report.write_summary(rows, out_dir / "summary.md", command=command, images=images, notes=notes)
 
     say(f"{len(paths)} mesh(es) x {len(method_list)} method setting(s) -> {out_dir}")
     use_ray, ray_address, _ = split_ray(ray_value, ())
@@ -415,10 +435,10 @@ def bench(
         workers = threads or 1
         executor = make_executor(jobs or default_jobs(workers), ray_address, use_ray, workers)
         method_list = precompute(paths, method_list, executor, workers, progress=say)
-    all_rows = run_batch(paths, method_list, options, progress=say, on_mesh=on_mesh)
+    all_rows = run_batch(paths, method_list, options, progress=say, on_mesh=on_mesh, sweep=sweep)
     # meshes that could not be loaded never reach on_mesh: their rows are only in all_rows
     report.write_csv(all_rows, out_dir / "results.csv")
-    report.write_summary(all_rows, out_dir / "summary.md", command=command, images=images)
+    report.write_summary(all_rows, out_dir / "summary.md", command=command, images=images, notes=notes)
     failures = sum(1 for r in all_rows if r.get("error"))
     say(
         f"done: {out_dir / 'results.csv'}, {out_dir / 'summary.md'}"

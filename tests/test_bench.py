@@ -12,7 +12,7 @@ import pytest
 from click.testing import CliRunner
 from scipy.spatial import cKDTree
 
-from tetweave_codec.bench import baselines, pictures, report
+from tetweave_codec.bench import baselines, pictures, report, sweep
 from tetweave_codec.bench.baselines import (
     DRACO_COMPRESSION_LEVEL,
     MLAB_MISSING,
@@ -25,8 +25,18 @@ from tetweave_codec.bench.baselines import (
     mlab_decimate,
     mlab_draco_methods,
 )
-from tetweave_codec.bench.batch import COLUMNS, find_meshes, mesh_labels, run_batch, run_mesh, run_method
+from tetweave_codec.bench.batch import (
+    COLUMNS,
+    MeshResult,
+    find_meshes,
+    mesh_labels,
+    reference_chamfer,
+    run_batch,
+    run_mesh,
+    run_method,
+)
 from tetweave_codec.bench.methods import Method, TetweaveMethod
+from tetweave_codec.bench.sweep import adaptive_sweep
 from tetweave_codec.cli.main import main
 from tetweave_codec.meshio import save_mesh
 from tetweave_codec.metrics.common import MetricOptions
@@ -537,3 +547,118 @@ def test_bench_keeps_the_tetweave_files(mesh_dir, tmp_path):
         assert len(data) == int(row["bytes"])
         assert len(decode(data)[1]) == int(row["n_faces"])
     assert sorted(p.name for p in (out / "files").rglob("*") if p.is_file()) == ["256-pts-sh1.tw"] * 2
+
+
+# ----------------------------------------------------------------------------------------------------------
+# The adaptive classical sweep
+# ----------------------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("start", [0, 7, 19])
+def test_bracket_finds_the_first_setting_that_reaches_each_target(start):
+    """On a falling curve of 20 settings (with a flat stretch and a failure at the small end), every target's
+    bracket is the full scan's, found with fewer evaluations than the scan."""
+    errors = np.array([math.inf, 9.0, 8.0, 6.0, 5.0, 5.0, 5.0, 4.0, 3.0, 2.5] + [2.0 / 1.3**k for k in range(10)])
+    for target in [10.0, 9.0, 8.5, 5.0, 4.5, 2.2, 1.0, float(errors[-1]), 0.01]:
+        seen: list[int] = []
+        lo, hi = sweep.bracket(lambda i, seen=seen: seen.append(i) or float(errors[i]), len(errors), target, start)
+        expect = int(np.argmax(errors <= target)) if (errors <= target).any() else len(errors)
+        assert (lo, hi) == (expect - 1, expect), target
+        assert len(set(seen)) < len(errors) - 4
+
+
+def test_last_smaller_walks_down_by_size():
+    sizes = [10, 20, 20, 30, 45, 60, 61, 90]
+    for limit in [5, 10, 11, 20, 21, 45, 61, 62, 1000]:
+        expect = max((i for i, s in enumerate(sizes) if s < limit), default=-1)
+        assert sweep._last_smaller(lambda i: sizes[i], 7, limit) == expect
+
+
+def test_reference_chamfer_is_the_full_metrics_chamfer():
+    v, f = rounded_box()
+    reference = prepare_reference(v, f, OPTIONS)
+    vd, fd = decimate(v, f, 0.2)
+    full = run_method("b", DracoMethod(10), vd, fd, reference, OPTIONS)[0]
+    assert (
+        reference_chamfer(reference, *draco_decode(draco_encode(vd, fd, 10, DRACO_COMPRESSION_LEVEL)), OPTIONS)
+        == (full["chamfer"])
+    )
+
+
+def _classical(mlab: bool):
+    keep = baselines.MLAB_KEEP[::3]  # 18 fractions, 0.5-50 %
+    methods = baselines.draco_methods(range(6, 17)) + baselines.decimate_draco_methods(keep, (9, 12))
+    return methods + (baselines.mlab_draco_methods(keep, (9, 11)) if mlab else [])
+
+
+def test_adaptive_sweep_brackets_each_target_and_matches_the_full_sweep():
+    """A sphere of ~7K faces, every classical family on dense grids: at targets inside and outside the families'
+    ranges the adaptive sweep measures a bracket of each target (a file at most that error and one above it) and
+    every family's size at matched error equals the full sweep's, from a fraction of its measurements."""
+    mlab = baselines.mlab_available()
+    v, f = sphere(1.0, 60)
+    full = run_mesh("s", v, f, _classical(mlab), OPTIONS, sweep="full")
+    fronts = report.family_fronts(full.rows)
+    assert set(fronts) == {"draco", "decimate+draco"} | ({"mlab+draco"} if mlab else set())
+    reference = prepare_reference(v, f, OPTIONS)
+    n_settings = len(_classical(mlab))
+    errors = sorted(float(r["chamfer"]) for r in report.ok_rows(full.rows))
+    targets = [1e-6, errors[len(errors) // 5], 1.7e-3, errors[-5], 1.0]
+    for target in targets:
+        result = MeshResult("s", v, f)
+        adaptive_sweep(result, _classical(mlab), [target], reference, OPTIONS, lambda _m: None)
+        rows = report.ok_rows(result.rows)
+        assert len(result.rows) < n_settings / 3
+        ours = report.family_fronts(rows)
+        for family, front in fronts.items():
+            expected = bytes_at(front, target)
+            assert bytes_at(ours.get(family, []), target) == pytest.approx(expected, rel=1e-12, abs=0), family
+            if expected is not None:  # bracketed on this family: files on both sides, with every metric
+                mine = [r for r in rows if r["family"] == family]
+                assert min(r["chamfer"] for r in mine) <= target < max(r["chamfer"] for r in mine)
+                assert any(r["chamfer"] <= target and r["normal_consistency"] != "" for r in mine)
+        # rows measured in both sweeps agree
+        by_name = {(r["family"], r["setting"]): r for r in full.rows}
+        for r in rows:
+            assert r["chamfer"] == by_name[(r["family"], r["setting"])]["chamfer"]
+            assert r["bytes"] == by_name[(r["family"], r["setting"])]["bytes"]
+
+
+def test_adaptive_sweep_without_a_target_measures_every_setting():
+    v, f = sphere(1.0, 24)
+    methods = baselines.draco_methods((8, 11, 14))
+    result = MeshResult("s", v, f)
+    adaptive_sweep(result, methods, [], prepare_reference(v, f, OPTIONS), OPTIONS, lambda _m: None)
+    assert [r["setting"] for r in result.rows] == ["q8", "q11", "q14"]
+    assert all(r["normal_consistency"] != "" for r in result.rows)
+
+
+def test_run_mesh_sweeps_around_the_tetweave_points():
+    """run_mesh's default (adaptive): the tetweave method runs first, then Draco is measured only around its
+    Chamfer distance; --sweep full measures every bit depth."""
+    v, f = sphere(0.8, 32)
+    fit = TetweaveMethod(256, sh_degree=1, quality="fast", iters=4, device="cpu", seed=0)
+    bits = range(4, 17)
+    adaptive = run_mesh("b", v, f, [*baselines.draco_methods(bits), fit], OPTIONS)
+    full = run_mesh("b", v, f, [*baselines.draco_methods(bits), fit], OPTIONS, sweep="full")
+    assert [r["family"] for r in adaptive.rows[:2]] == ["input", "tetweave"]
+    draco = [r for r in adaptive.rows if r["family"] == "draco"]
+    assert 2 <= len(draco) <= 6 and len([r for r in full.rows if r["family"] == "draco"]) == len(bits)
+    assert report.matched_points(adaptive.rows)[1][0].sizes == report.matched_points(full.rows)[1][0].sizes
+    with pytest.raises(ValueError, match="sweep"):
+        run_mesh("b", v, f, [fit], OPTIONS, sweep="dense")
+
+
+def test_bench_sweep_option(mesh_dir, tmp_path):
+    """--sweep: a choice (exit 2 otherwise); the summary's regenerating command names it; classical-only runs
+    measure every setting either way."""
+    bad = CliRunner().invoke(main, ["bench", str(mesh_dir), "--out", str(tmp_path / "x"), "--sweep", "dense"])
+    assert bad.exit_code == 2 and "dense" in bad.output and not (tmp_path / "x").exists()
+    for sweep_name in ("full", "adaptive"):
+        out = tmp_path / sweep_name
+        args = ["bench", str(mesh_dir), "--out", str(out), "--methods", "draco", "--draco-bits", "8,12"]
+        result = CliRunner().invoke(main, [*args, "--samples", "2000", "--no-pictures", "--sweep", sweep_name])
+        assert result.exit_code == 0, result.output
+        assert f"--sweep {sweep_name}" in (out / "summary.md").read_text()
+        with open(out / "results.csv") as fh:
+            assert len([r for r in csv.DictReader(fh) if r["family"] == "draco"]) == 4

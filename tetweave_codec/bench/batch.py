@@ -18,8 +18,10 @@ from pathlib import Path
 import numpy as np
 
 from tetweave_codec.bench.methods import TETWEAVE, Method
-from tetweave_codec.metrics.common import MetricOptions
-from tetweave_codec.metrics.fidelity import prepare_reference
+from tetweave_codec.geometry.closest import SurfaceTree
+from tetweave_codec.geometry.triangles import sample_surface
+from tetweave_codec.metrics.common import MetricOptions, as_mesh
+from tetweave_codec.metrics.fidelity import Reference, point_surface_distance, prepare_reference, to_frame
 from tetweave_codec.metrics.summary import evaluate, mesh_report
 
 # Result columns in CSV order. Distances are in the input's normalized frame (see tetweave_codec.metrics.fidelity).
@@ -62,6 +64,9 @@ QUALITY_COLUMNS = [
 COLUMNS = ID_COLUMNS + PARAM_COLUMNS + SIZE_COLUMNS + FIDELITY_COLUMNS + QUALITY_COLUMNS + ["error"]
 
 INPUT_FAMILY = "input"
+# How the classical settings are chosen (`tetweave bench --sweep`): every one, or those around the tetweave points.
+ADAPTIVE, FULL = "adaptive", "full"
+SWEEPS = (ADAPTIVE, FULL)
 ProgressFn = Callable[[str], None]
 
 
@@ -145,32 +150,79 @@ def input_row(name: str, vertices: np.ndarray, faces: np.ndarray, options: Metri
     return row
 
 
-def run_method(
-    name: str, method: Method, vertices: np.ndarray, faces: np.ndarray, reference, options: MetricOptions
-) -> tuple[dict, tuple[np.ndarray, np.ndarray] | None, bytes | None]:
-    """Encode, decode and measure one method on one mesh; returns (row, decoded mesh, encoded bytes), the last
-    two None on failure."""
+def encode_method(name: str, method: Method, vertices: np.ndarray, faces: np.ndarray) -> tuple[dict, bytes | None]:
+    """Encode one mesh with one method: (its row with the size columns, the bytes; None and the row's error on
+    failure)."""
     row = _empty_row(name, method)
-    n_in = _referenced_vertices(faces)
     try:
         t0 = time.perf_counter()
         data = method.encode(vertices, faces)
         row["encode_s"] = time.perf_counter() - t0 + method.reused_seconds()
         row["bytes"] = len(data)
-        row["bits_per_vertex"] = 8.0 * len(data) / n_in
+        row["bits_per_vertex"] = 8.0 * len(data) / _referenced_vertices(faces)
         row.update(method.info(data))
+        return row, data
+    except Exception as exc:  # one failure must not stop the batch; it is reported in the row
+        row["error"] = _error_text(exc)
+        return row, None
+
+
+def measure_method(
+    row: dict, method: Method, data: bytes, reference: Reference, options: MetricOptions, chamfer_only: bool = False
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """Decode `encode_method`'s bytes and fill `row` with the decoded mesh's metrics against the prepared input
+    (all of them, or with `chamfer_only` the Chamfer distance and the counts: `reference_chamfer`, ~6x cheaper);
+    returns the decoded mesh, None (and the row's error) on failure."""
+    try:
         t0 = time.perf_counter()
         v_out, f_out = method.decode(data)
         row["decode_s"] = time.perf_counter() - t0
         row["n_vertices"], row["n_faces"] = _referenced_vertices(f_out), len(f_out)
         t0 = time.perf_counter()
-        metrics = evaluate(reference, v_out, f_out, options)
+        if chamfer_only:
+            metrics = {"chamfer": reference_chamfer(reference, v_out, f_out, options)}
+        else:
+            metrics = evaluate(reference, v_out, f_out, options)
         row["metrics_s"] = time.perf_counter() - t0
         row.update({k: v for k, v in metrics.items() if k in COLUMNS})
-        return row, (v_out, f_out), data
+        return v_out, f_out
     except Exception as exc:  # one failure must not stop the batch; it is reported in the row
         row["error"] = _error_text(exc)
-        return row, None, None
+        return None
+
+
+def reference_chamfer(reference: Reference, vertices: np.ndarray, faces: np.ndarray, options: MetricOptions) -> float:
+    """The `chamfer` of `summary.evaluate` (the same samples, hence the same value) without the other metrics: the
+    input's samples and tree come prepared, the decoded mesh (vertices (V,3) in the input's frame, faces (F,3)) is
+    sampled and its tree built. ValueError on a mesh without faces."""
+    v, f = as_mesh(to_frame(vertices, reference.scale, reference.offset), faces)
+    if len(f) == 0:
+        raise ValueError("the decoded mesh has no faces")
+    points, _ = sample_surface(v, f, options.n_samples, options.seed)
+    to_decoded, _ = SurfaceTree(v, f).query(reference.mesh.points)[:2]
+    to_input, _ = point_surface_distance(points, reference.mesh)
+    return float(0.5 * (np.sqrt(np.maximum(to_decoded, 0.0)).mean() + to_input.mean()))
+
+
+def run_method(
+    name: str, method: Method, vertices: np.ndarray, faces: np.ndarray, reference, options: MetricOptions
+) -> tuple[dict, tuple[np.ndarray, np.ndarray] | None, bytes | None]:
+    """Encode, decode and measure one method on one mesh; returns (row, decoded mesh, encoded bytes), the last
+    two None on failure."""
+    row, data = encode_method(name, method, vertices, faces)
+    decoded = None if data is None else measure_method(row, method, data, reference, options)
+    return row, decoded, (None if decoded is None else data)
+
+
+def say_row(say: ProgressFn, name: str, label: str, row: dict) -> None:
+    """One progress line for a measured row (or its failure)."""
+    if row.get("error"):
+        say(f"{name}: {label}: FAILED: {row['error']}")
+        return
+    say(
+        f"{name}: {label}: {row['bytes']:,} bytes, CD {row['chamfer']:.3g}, {row['n_faces']:,} faces "
+        f"(encode {row['encode_s']:.2f}s, decode {row['decode_s']:.2f}s, metrics {row['metrics_s']:.1f}s)"
+    )
 
 
 def run_mesh(
@@ -180,8 +232,13 @@ def run_mesh(
     methods: Sequence[Method],
     options: MetricOptions | None = None,
     progress: ProgressFn | None = None,
+    sweep: str = ADAPTIVE,
 ) -> MeshResult:
-    """All methods on one (already loaded) mesh."""
+    """All methods on one (already loaded) mesh. sweep: "full" measures every classical setting; "adaptive" (the
+    default) runs the tetweave methods first and then only the classical settings that bracket their Chamfer
+    distances (`sweep.adaptive_sweep`; every setting when there is no tetweave point to compare with)."""
+    if sweep not in SWEEPS:
+        raise ValueError(f"sweep is one of {', '.join(SWEEPS)}, got {sweep!r}")
     opts = options or MetricOptions()
     say = progress or (lambda _msg: None)
     result = MeshResult(name, vertices, faces)
@@ -193,23 +250,31 @@ def run_mesh(
         say(f"{name}: cannot measure against this input: {error}")
         result.rows = [_empty_row(name, m) | {"error": f"input: {error}"} for m in [None, *methods]]
         return result
+    fits = [m for m in methods if m.family == TETWEAVE]
+    if sweep == ADAPTIVE and fits and len(fits) < len(methods):
+        from tetweave_codec.bench.sweep import adaptive_sweep
+
+        _run_each(result, fits, reference, opts, say)
+        targets = [float(r["chamfer"]) for r in result.rows if r["family"] == TETWEAVE and not r.get("error")]
+        classical = [m for m in methods if m.family != TETWEAVE]
+        adaptive_sweep(result, classical, targets, reference, opts, say)
+    else:
+        _run_each(result, methods, reference, opts, say)
+    return result
+
+
+def _run_each(result: MeshResult, methods: Sequence[Method], reference: Reference, options, say) -> None:
+    """Every method on result's mesh, in order, all metrics; rows, decoded meshes and tetweave files into result."""
     for i, method in enumerate(methods, 1):
-        say(f"{name}: [{i}/{len(methods)}] {method.name} ...")
-        row, decoded, data = run_method(name, method, vertices, faces, reference, opts)
+        label = f"[{i}/{len(methods)}] {method.name}"
+        say(f"{result.name}: {label} ...")
+        row, decoded, data = run_method(result.name, method, result.vertices, result.faces, reference, options)
         result.rows.append(row)
         if decoded is not None:
             result.decoded[method.name] = decoded
             if method.family == TETWEAVE:
                 result.files[method.setting] = data
-            say(
-                f"{name}: [{i}/{len(methods)}] {method.name}: {row['bytes']:,} bytes, "
-                f"CD {row['chamfer']:.3g}, {row['n_faces']:,} faces "
-                f"(encode {row['encode_s']:.2f}s, decode {row['decode_s']:.2f}s, "
-                f"metrics {row['metrics_s']:.1f}s)"
-            )
-        else:
-            say(f"{name}: [{i}/{len(methods)}] {method.name}: FAILED: {row['error']}")
-    return result
+        say_row(say, result.name, label, row)
 
 
 def run_batch(
@@ -218,6 +283,7 @@ def run_batch(
     options: MetricOptions | None = None,
     progress: ProgressFn | None = None,
     on_mesh: Callable[[MeshResult], None] | None = None,
+    sweep: str = ADAPTIVE,
 ) -> list[dict]:
     """Run every method on every mesh file; returns all rows (input rows included).
 
@@ -241,7 +307,7 @@ def run_batch(
                 row["error"] = f"load: {error}"
                 rows.append(row)
             continue
-        result = run_mesh(name, vertices, faces, methods, options, progress)
+        result = run_mesh(name, vertices, faces, methods, options, progress, sweep)
         rows.extend(result.rows)
         if on_mesh is not None:
             on_mesh(result)
