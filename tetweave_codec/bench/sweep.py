@@ -16,8 +16,8 @@ kept fraction, or Draco's bits), those two points are
 
 With the Chamfer distance and the bytes monotone along every curve, L and R are the very points the full sweep's
 front has around e, so the matched size is the full sweep's. Measured settings are kept as rows; the search
-measures the Chamfer distance alone (`batch.reference_chamfer`, the same value as the full metrics), and L and R of
-each family and target get every metric (normal consistency for the verdict's NC comparison, the tables). The
+measures the Chamfer distance alone (`batch.reference_chamfer`, the same value as the full metrics); L and R of the
+family smallest at each target get every metric (the verdict's normal consistency comparison, the tables). The
 decimations are shared by the bit depths (`baselines.DecimationCache`) and never depend on the search's order.
 """
 
@@ -34,6 +34,7 @@ from tetweave_codec.bench.batch import MeshResult, ProgressFn, encode_method, me
 from tetweave_codec.bench.methods import Method
 from tetweave_codec.metrics.common import MetricOptions
 from tetweave_codec.metrics.fidelity import Reference
+from tetweave_codec.metrics.rate_distortion import bytes_at, pareto_front
 
 
 @dataclass
@@ -67,6 +68,7 @@ class Curve:
 
     family: str
     settings: list[Setting]
+    slope: float | None = None  # expected fall of log(error) per setting, for the search's first steps
     start: int = field(default=-1)  # where the last search ended (-1: none yet)
 
 
@@ -81,7 +83,18 @@ def classical_curves(methods: Sequence[Method]) -> list[Curve]:
         p = m.params()
         return float(p.get("keep_fraction", 1.0)), int(p.get("quantization_bits", 0))
 
-    return [Curve(ms[0].family, [Setting(m) for m in sorted(ms, key=order)]) for ms in curves.values()]
+    out = []
+    for ms in curves.values():
+        ms = sorted(ms, key=order)
+        keys = np.array([order(m) for m in ms], dtype=np.float64)
+        slope = None
+        if len(ms) > 1:
+            # Chamfer distance ~ 1 / kept fraction (a quadric decimation's error ~ edge length squared), and halved
+            # by each Draco bit (the quantization step)
+            steps = np.log(keys[-1, 0] / keys[0, 0]) + np.log(2.0) * (keys[-1, 1] - keys[0, 1])
+            slope = float(steps / (len(ms) - 1)) or None
+        out.append(Curve(ms[0].family, [Setting(m) for m in ms], slope))
+    return out
 
 
 class Sweep:
@@ -113,11 +126,14 @@ class Sweep:
         return s.error
 
 
-def bracket(error_at: Callable[[int], float], n: int, target: float, start: int) -> tuple[int, int]:
+def bracket(
+    error_at: Callable[[int], float], n: int, target: float, start: int, slope: float | None = None
+) -> tuple[int, int]:
     """(lo, hi = lo + 1) on a curve of n settings whose error falls with the index: error(lo) > target >=
     error(hi), lo = -1 when the first setting already reaches the target, hi = n when none does. Gallops from
-    `start` (steps 1, 2, 4, ...) until the target is bracketed, then interpolates log(error) linearly in the index
-    (bisecting whenever an interpolation step did not halve the interval)."""
+    `start` (steps 1, 2, 4, ..., or the step that `slope`, the expected fall of log(error) per index, predicts when
+    that is longer) until the target is bracketed, then interpolates log(error) linearly in the index (bisecting
+    whenever an interpolation step did not halve the interval)."""
     lo, hi = -1, n
     known: dict[int, float] = {}
     i = min(max(start, 0), n - 1)
@@ -131,10 +147,13 @@ def bracket(error_at: Callable[[int], float], n: int, target: float, start: int)
             lo = i
         if hi - lo <= 1:
             break
+        jump = step
+        if slope and 0 < known[i] < math.inf:
+            jump = max(step, round(abs(math.log(known[i] / target)) / slope))
         if lo < 0:  # nothing above the target seen yet: gallop towards smaller files
-            i, step = max(0, hi - step), 2 * step
+            i, step = max(0, hi - jump), 2 * step
         elif hi >= n:  # nothing at or below the target seen yet: gallop towards larger files
-            i, step = min(n - 1, lo + step), 2 * step
+            i, step = min(n - 1, lo + jump), 2 * step
         else:
             guess = (lo + hi) // 2
             e_lo, e_hi = known[lo], known[hi]
@@ -146,20 +165,20 @@ def bracket(error_at: Callable[[int], float], n: int, target: float, start: int)
     return lo, hi
 
 
-def _search_family(sweep: Sweep, curves: list[Curve], target: float) -> None:
-    """Measure the settings that bracket `target` on the family's front (L and R of the module docstring) and give
-    both every metric."""
+def _search_family(sweep: Sweep, curves: list[Curve], target: float) -> tuple[Setting | None, Setting | None]:
+    """Measure the settings that bracket `target` on the family's front: (L, R) of the module docstring, None
+    where the family has none."""
     brackets = []
     previous = -1
     for curve in curves:
         n = len(curve.settings)
         start = curve.start if curve.start >= 0 else previous if previous >= 0 else n // 2
-        lo, hi = bracket(lambda i, c=curve: sweep.error(c.settings[i]), n, target, start)
+        lo, hi = bracket(lambda i, c=curve: sweep.error(c.settings[i]), n, target, start, curve.slope)
         curve.start = previous = min(hi, n - 1)
         brackets.append((curve, lo, hi))
     reaching = [(sweep.encode(c.settings[hi]), c.settings[hi]) for c, _, hi in brackets if hi < len(c.settings)]
     if not reaching:
-        return  # no setting of the family reaches the target: the front ends above it (the full sweep's answer)
+        return None, None  # no setting of the family reaches the target: its front ends above it
     size_l, best_l = min(reaching, key=lambda x: x[0])
     best_r: Setting | None = None
     for curve, lo, _ in sorted(brackets, key=lambda b: b[0].settings[b[1]].error if b[1] >= 0 else math.inf):
@@ -168,9 +187,7 @@ def _search_family(sweep: Sweep, curves: list[Curve], target: float) -> None:
         k = _last_smaller(lambda i, c=curve: sweep.encode(c.settings[i]), lo, size_l)
         if k >= 0 and sweep.error(curve.settings[k]) < (best_r.error if best_r else math.inf):
             best_r = curve.settings[k]
-    for s in (best_l, best_r):
-        if s is not None:
-            sweep.error(s, complete=True)
+    return best_l, best_r
 
 
 def _last_smaller(size_at: Callable[[int], float], top: int, size: float) -> int:
@@ -213,14 +230,26 @@ def adaptive_sweep(
     curves = classical_curves(methods)
     sweep = Sweep(result, reference, options, say)
     targets = sorted({float(t) for t in targets if t > 0 and math.isfinite(t)})
+    brackets: list[dict[str, tuple[Setting | None, Setting | None]]] = [{} for _ in targets]  # family -> (L, R)
     families: dict[str, list[Curve]] = {}
     for curve in curves:
         families.setdefault(curve.family, []).append(curve)
     for family_curves in families.values():
         # the most accurate bit depth first: its bracket is the best start for the others
         family_curves.sort(key=lambda c: -int(c.settings[0].method.params().get("quantization_bits", 0)))
-        for target in targets:
-            _search_family(sweep, family_curves, target)
+        for k, target in enumerate(targets):
+            brackets[k][family_curves[0].family] = _search_family(sweep, family_curves, target)
+    for target, found in zip(targets, brackets, strict=True):
+        # every metric for the two settings that decide the verdict at this target: those of the smallest family
+        sizes = {}
+        for family, (left, right) in found.items():
+            front = pareto_front([(s.error, s.size) for s in (left, right) if s is not None])
+            sizes[family] = bytes_at(front, target)
+        decided = [(b, f) for f, b in sizes.items() if b is not None]
+        if decided:
+            for s in found[min(decided)[1]]:
+                if s is not None:
+                    sweep.error(s, complete=True)
     if not targets:
         for curve in curves:
             for s in curve.settings:
