@@ -1,0 +1,162 @@
+"""Decode speed before / after in one run: the committed default files decoded by an older commit's code and by
+this tree, interleaved (docs/measurements/decode_speed.md).
+
+    OMP_NUM_THREADS=1 python docs/measurements/decode_speed_ab.py ffee759 [--repeats 5] [--stages] [--unfiltered]
+
+The older commit's source is unpacked into a temporary folder (`git archive`), its C extensions built there
+(`setup.py build_ext --inplace`), `cli`, `formats` and `benchmarks` linked into its package (what the editable
+install's package-dir mapping does), and each measurement runs in a subprocess with one tree first on PYTHONPATH.
+Rows: the API stages (`decoder.decode_detailed`, CPU ms, medians) and the CLI (`python -m tetweave_codec.cli.main
+decode FILE -o OUT.ply`, the child's user + system CPU ms, medians), with ratios to the same run's Delaunay time.
+`--stages`: the filter's own stages of the 40 KB files (edges, Taubin, Loop + midpoint, first and later crossing
+checks, best of 3). `--unfiltered`: the same files with their smoothing and subdivision flags cleared.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import statistics
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[2]
+MESHES = ("fandisk", "igea", "spot", "stanford-bunny")
+SIZES = (10240, 40960)
+
+API = """
+import json, statistics, sys, time
+from tetweave_codec.decoder import decode_detailed
+data = open(sys.argv[1], "rb").read(); reps = int(sys.argv[2])
+decode_detailed(data)
+rows = []
+for _ in range(reps):
+    t = time.process_time(); r = decode_detailed(data, clock=time.process_time); tot = time.process_time() - t
+    rows.append(dict(r.seconds, total=tot))
+print(json.dumps({k: 1e3 * statistics.median(x[k] for x in rows) for k in rows[0]} | {"faces": len(r.faces)}))
+"""
+
+STAGES = """
+import json, sys, time, numpy as np
+from tetweave_codec.formats.tw import unpack
+from tetweave_codec.geometry.delaunay import tetrahedralize
+from tetweave_codec.geometry.marching_tets import marching_tets_numpy
+from tetweave_codec.geometry import smoothing as sm, subdivision as sd, surface_filter as sf
+tw = unpack(open(sys.argv[1], "rb").read())
+pts = np.asarray(tw.points, np.float64); tz = tetrahedralize(pts, tw.backend)
+c = None if tw.sh_degree < 0 else np.asarray(tw.c, np.float64)
+mt = marching_tets_numpy(pts, tz.tets, np.asarray(tw.s, np.float64), c, tz.hull_faces)
+v0, f0 = mt.vertices, mt.faces
+T = time.process_time
+calls = []
+check = sf.self_intersecting_faces
+def timed(v, f, only=None):
+    t = T(); r = check(v, f, only=only); calls.append(T() - t); return r
+sf.self_intersecting_faces = timed
+best = None
+for _ in range(3):
+    calls.clear()
+    t0 = T(); e = sm.mesh_edges(f0, len(v0), closed=True); t1 = T()
+    v = sm.taubin(v0, f0, tw.smoothing, edges=e); t2 = T()
+    v2, r2, f2 = sd.loop_and_midpoint(v, v0, f0, tw.subdivision, neighbours=e); t3 = T()
+    sf.restore_crossings(v2, r2, f2)
+    row = [t1 - t0, t2 - t1, t3 - t2, calls[0], sum(calls[1:])]
+    best = row if best is None or sum(row) < sum(best) else best
+print(json.dumps([1e3 * x for x in best] + [len(calls) - 1]))
+"""
+
+
+def old_tree(commit: str, where: Path) -> Path:
+    """`commit`'s source unpacked into where/tree, extensions built, package-dir mapping as links."""
+    tree = where / "tree"
+    tree.mkdir()
+    archive = subprocess.run(["git", "-C", str(REPO), "archive", commit], check=True, capture_output=True).stdout
+    subprocess.run(["tar", "-x", "-C", str(tree)], input=archive, check=True)
+    for name in ("cli", "formats", "benchmarks"):
+        (tree / "tetweave_codec" / name).symlink_to(Path("..") / name)
+    subprocess.run([sys.executable, "setup.py", "build_ext", "--inplace"], cwd=tree, check=True, capture_output=True)
+    return tree
+
+
+def env_for(tree: Path) -> dict:
+    return dict(os.environ, OMP_NUM_THREADS="1", MKL_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1", PYTHONPATH=str(tree))
+
+
+def run_code(code: str, tree: Path, *args: str) -> object:
+    done = subprocess.run([sys.executable, "-c", code, *args], check=True, capture_output=True, text=True,
+                          env=env_for(tree), cwd=tempfile.gettempdir())  # fmt: skip
+    return json.loads(done.stdout)
+
+
+def cli_cpu(tree: Path, path: Path, repeats: int) -> float:
+    """Median user + system CPU ms of `tetweave decode path -o tmp.ply` in a fresh process."""
+    with tempfile.TemporaryDirectory() as tmp:
+        cmd = [sys.executable, "-m", "tetweave_codec.cli.main", "decode", str(path), "-o", str(Path(tmp) / "o.ply")]
+        kw = dict(check=True, capture_output=True, env=env_for(tree), cwd=tmp)
+        subprocess.run(cmd, **kw)  # warm-up: file system caches
+        times = []
+        for _ in range(repeats):
+            before = resource.getrusage(resource.RUSAGE_CHILDREN)
+            subprocess.run(cmd, **kw)
+            after = resource.getrusage(resource.RUSAGE_CHILDREN)
+            times.append(1e3 * ((after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)))
+    return statistics.median(times)
+
+
+def unfiltered(path: Path, out: Path) -> Path:
+    """A copy of the file at `path` with its smoothing and subdivision flags cleared (same points)."""
+    from dataclasses import replace
+
+    from tetweave_codec.formats import common
+    from tetweave_codec.formats.tw import unpack
+    from tetweave_codec.formats.tw2 import pack_v2
+
+    tw = unpack(path.read_bytes())
+    flags = tw.flags & ~common.FLAG_SMOOTHING & ~common.FLAG_SUBDIVISION
+    out.write_bytes(pack_v2(replace(tw, flags=flags, creases=False)))
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("commit", help="the 'before' commit")
+    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--stages", action="store_true", help="the filter's stages of the 40 KB files instead")
+    parser.add_argument("--unfiltered", action="store_true", help="the files with their filter flags cleared")
+    args = parser.parse_args(argv)
+    files = [REPO / "benchmarks/results/files" / m / f"size-{s}-sh-auto.tw" for s in SIZES for m in MESHES]
+    with tempfile.TemporaryDirectory() as tmp:
+        trees = {"before": old_tree(args.commit, Path(tmp)), "after": REPO}
+        if args.stages:
+            print("| file | code | edges | Taubin | Loop + midpoint | first crossing check | later checks | count |")
+            print("|---|---|---:|---:|---:|---:|---:|---:|")
+            for path in files[len(MESHES) :]:
+                for name, tree in trees.items():
+                    row = run_code(STAGES, tree, str(path))
+                    cells = " | ".join(f"{x:.1f}" for x in row[:5])
+                    print(f"| {path.parent.name} {path.stem} | {name} | {cells} | {row[5]} |", flush=True)
+            return 0
+        if args.unfiltered:
+            files = [unfiltered(p, Path(tmp) / f"{p.parent.name}_{p.name}") for p in files]
+        print("| file | code | faces | unpack | Delaunay | marching tets | filter | API total | API / Delaunay | CLI | "
+              "CLI / Delaunay |")  # fmt: skip
+        print("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
+        for path in files:
+            for name, tree in trees.items():
+                r = run_code(API, tree, str(path), str(args.repeats))
+                cli = cli_cpu(tree, path, args.repeats)
+                d = r["delaunay"]
+                label = path.stem if args.unfiltered else f"{path.parent.name} {path.stem}"
+                print(f"| {label} | {name} | "
+                      f"{r['faces']:,} | {r['unpack']:.1f} | {d:.1f} | {r['marching_tets']:.1f} | "
+                      f"{r['smoothing']:.1f} | {r['total']:.1f} | {r['total'] / d:.2f} | {cli:.0f} | {cli / d:.1f} |",
+                      flush=True)  # fmt: skip
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
