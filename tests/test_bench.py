@@ -667,3 +667,14 @@ def test_bench_sweep_option(mesh_dir, tmp_path):
         assert f"--sweep {sweep_name}" in (out / "summary.md").read_text()
         with open(out / "results.csv") as fh:
             assert len([r for r in csv.DictReader(fh) if r["family"] == "draco"]) == 4
+
+
+def test_the_package_never_imports_the_benchmark_scripts():
+    """benchmarks/ holds scripts that use the package; the package (and the CLI, the formats) never imports them."""
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parent.parent
+    sources = [p for folder in ("tetweave_codec", "cli", "formats") for p in (root / folder).rglob("*.py")]
+    assert len(sources) > 50
+    offenders = [str(p.relative_to(root)) for p in sources if "tetweave_codec.benchmarks" in p.read_text()]
+    assert offenders == []
