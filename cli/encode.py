@@ -220,7 +220,7 @@ def encode(
     batch: -o DIR is required, files run in parallel (--jobs local processes, or --ray), a re-run skips the files
     already done with the same input and options, and the exit status is 1 when any file failed.
     """
-    from tetweave_codec.runner.work import EncodeOptions
+    from tetweave_codec.options import EncodeOptions
 
     use_ray, ray_address, inputs = split_ray(ray_value, inputs)
     batch = is_batch(inputs) or use_ray or jobs is not None
@@ -287,24 +287,23 @@ def _encode_one(mesh: Path, output: Path | None, opts, quiet: bool) -> None:
     if output.resolve() == mesh.resolve():
         raise click.BadParameter("the output would overwrite the input", param_hint="-o/--output")
     check_output_file(output)  # before minutes of fitting
-    dev = configure_torch(opts.threads, opts.device)
+    configure_torch(opts.threads, opts.device)
     vertices, faces = load_mesh(mesh)
     schedule = schedule_for(opts.quality, opts.iters)
     if opts.iters is None:  # the encoder scales the preset's iterations for smaller fits, as here
         schedule = scaled_schedule(schedule, opts.points)
-    options = opts.encoder_kwargs(dev)
     size, max_error = opts.size, opts.max_error
     t0 = time.perf_counter()
     if quiet:
-        result = encode_mesh(vertices, faces, **options)
+        result = encode_mesh(vertices, faces, options=opts)
     elif sys.stderr.isatty() and size is None and max_error is None:  # rate control runs several fits
         # the grid layout runs the late stage only (its point count is about --points)
         iterations = schedule.late_iters + (schedule.main_iters if opts.layout != "grid" else 0)
         bar, callback = _progress_bar(iterations)
         with bar:
-            result = encode_mesh(vertices, faces, progress=callback, **options)
+            result = encode_mesh(vertices, faces, options=opts, progress=callback)
     else:
-        result = encode_mesh(vertices, faces, progress=_progress_lines(), **options)
+        result = encode_mesh(vertices, faces, options=opts, progress=_progress_lines())
     write_bytes_atomic(output, result.data)
     st = result.stats
     sec = st["seconds"]

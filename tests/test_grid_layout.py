@@ -136,15 +136,15 @@ def test_grid_late_stage_keeps_the_band_signs():
     """No s changes sign in the late stage: the stored symbols' signs are the band's inside / outside."""
     import torch
 
-    from tetweave_codec.encoder import Job
     from tetweave_codec.fit.config import QUALITY
     from tetweave_codec.fit.finish import complete
     from tetweave_codec.fit.loop import deterministic_torch
+    from tetweave_codec.job import FitSettings, grid_layout_stage, make_job
 
     v, f = torus()
-    job = Job(v, f, 1, QUALITY["fast"], "fast", torch.device("cpu"), 0, "sdf", None, smoothing=1, subdivision=1,
-              layout="grid")  # fmt: skip
-    ctx, fixed, quant = job.grid_stage(frame_for_cell(job.grid_band().cell_for_points(1500)))
+    settings = FitSettings(1, QUALITY["fast"], "fast", torch.device("cpu"), smoothing=1, subdivision=1)
+    job = make_job(v, f, settings, layout="grid")
+    ctx, fixed, quant = grid_layout_stage(job, frame_for_cell(job.grid_band().cell_for_points(1500)))
     assert fixed.keep_signs and ctx.frame_scale == frame_for_cell(job.grid_band().cell_for_points(1500)).frame_scale
     with deterministic_torch():
         result = complete(fixed, ctx, quant)
@@ -199,7 +199,7 @@ def test_cli_grid_layout(tmp_path):
 def test_grid_size_beyond_its_point_cap_is_refused_before_any_fit(monkeypatch):
     """The grid layout has its own cap (its late stage is cheaper than a fit); beyond it, one clear error."""
     v, f = torus()
-    monkeypatch.setattr(rate_control, "GRID_MAX_RATE_POINTS", 500)
+    monkeypatch.setattr("tetweave_codec.rate_control.size.GRID_MAX_RATE_POINTS", 500)
     monkeypatch.setattr("tetweave_codec.fit.finish.late_stage", lambda *a, **k: pytest.fail("no fit expected"))
     with pytest.raises(InputError, match="grid layout"):
         encode(v, f, size=20000, layout="grid", **FAST)
@@ -230,6 +230,6 @@ def test_best_layout_needs_a_target_and_survives_one_failing_layout(monkeypatch)
     with pytest.raises(InputError, match="best layout"):
         encode(v, f, points=1000, layout="best", **FAST)
     # the grid layout cannot meet this size (cap): the fit layout's file is kept, the grid's failure reported
-    monkeypatch.setattr(rate_control, "GRID_MAX_RATE_POINTS", 100)
+    monkeypatch.setattr("tetweave_codec.rate_control.size.GRID_MAX_RATE_POINTS", 100)
     best = encode(v, f, size=3000, layout="best", **FAST)
     assert best.stats["layout"] == "fit" and "grid layout" in best.stats["layouts"]["grid"]["error"]

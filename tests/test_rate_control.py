@@ -11,6 +11,10 @@ from tetweave_codec.cli.main import main
 from tetweave_codec.decoder import decode
 from tetweave_codec.encoder import encode
 from tetweave_codec.errors import InputError
+from tetweave_codec.fit.config import default_quantization
+from tetweave_codec.job import FitSettings, make_job
+from tetweave_codec.rate_control import error as rc_error
+from tetweave_codec.rate_control import size as rc_size
 
 manifold3d = pytest.importorskip("manifold3d")
 
@@ -20,7 +24,7 @@ FAST = {"quality": "fast", "iters": 40, "device": "cpu", "seed": 0}
 @pytest.fixture
 def search_only(monkeypatch):
     """The --max-error search alone (no feature-only fit first: these tests pass no job)."""
-    monkeypatch.setattr(rate_control, "_feature_only_trial", lambda job, max_error, decode: None)
+    monkeypatch.setattr(rc_error, "_feature_only_trial", lambda job, max_error: None)
 
 
 def _mesh(m) -> tuple[np.ndarray, np.ndarray]:
@@ -72,10 +76,10 @@ def test_finer_steps_are_paid_for_with_points():
         fine, plain = rate_control.points_for_size(size, 0.0), rate_control.points_for_size(size)
         assert 0.7 * plain < fine < plain
         assert rate_control.points_for_size(size, 3.0) == plain
-        q, q_plain = rate_control.size_quantization(fine, size, 0.0), rate_control.default_quantization(plain)
+        q, q_plain = rate_control.size_quantization(fine, size, 0.0), default_quantization(plain)
         assert q.position_bits >= q_plain.position_bits
-        expected = rate_control.default_quantization(fine).s_step * rate_control.step_factor(0.0, fine)
-        assert q.s_step == pytest.approx(expected) and q.s_step < rate_control.default_quantization(fine).s_step
+        expected = default_quantization(fine).s_step * rate_control.step_factor(0.0, fine)
+        assert q.s_step == pytest.approx(expected) and q.s_step < default_quantization(fine).s_step
         assert rate_control.size_quantization(plain, size, 3.0) == q_plain
 
 
@@ -83,14 +87,12 @@ def test_input_detail_is_measured_once_per_job(monkeypatch):
     """The decimation probe runs once per job; rate control's prior and steps read the same value."""
     import fast_simplification
 
-    from tetweave_codec.encoder import Job
-
     calls = []
     real = fast_simplification.simplify
     monkeypatch.setattr(fast_simplification, "simplify", lambda *a: calls.append(1) or real(*a))
-    job = Job(*bumpy_sphere(), 1, None, "default", "cpu", 0, "sdf", None)
+    job = make_job(*bumpy_sphere(), FitSettings(1, None))
     first = rate_control.input_detail(job)
-    assert rate_control.input_detail(job) == first and job.detail == first and len(calls) == 1
+    assert rate_control.input_detail(job) == first and job.input.detail == first and len(calls) == 1
     assert rate_control.prior_error_points(job) == pytest.approx(
         rate_control.PRIOR_BASE + rate_control.PRIOR_DETAIL_SLOPE * max(0.0, first - rate_control.PRIOR_DETAIL_KNEE)
     )
@@ -153,13 +155,13 @@ def test_max_error_search_on_a_model_of_the_error(search_only, monkeypatch, k, f
     MAX_ERROR_FITS fits and ends close to the smallest sufficient count, or refuses in one line."""
     calls = []
 
-    def fake_fit(job, n, quant, decode):
+    def fake_fit(job, n, quant):
         calls.append(n)
         return rate_control.Trial(None, None, b"", k / n + floor, None)
 
-    monkeypatch.setattr(rate_control, "_fit_and_measure", fake_fit)
-    monkeypatch.setattr(rate_control, "mesh_prior", lambda job: (rate_control.PRIOR_ERROR_POINTS, 0.0))
-    monkeypatch.setattr(rate_control, "_smallest_within", lambda job, run, e, n, decode, alpha: (n, run.error))
+    monkeypatch.setattr(rc_error, "_fit_and_measure", fake_fit)
+    monkeypatch.setattr(rc_error, "mesh_prior", lambda job: (rate_control.PRIOR_ERROR_POINTS, 0.0))
+    monkeypatch.setattr(rc_error, "_smallest_within", lambda job, run, e, n, note: (n, run.error))
     target = 1e-3
     needed = k / (target - floor)
     if needed > rate_control.MAX_RATE_POINTS:
@@ -177,23 +179,21 @@ def test_max_error_search_on_a_holed_mesh_does_not_overshoot(search_only, monkey
     ~1.6x the points needed."""
     calls = []
 
-    def fake_fit(job, n, quant, decode):
+    def fake_fit(job, n, quant):
         calls.append(n)
         return rate_control.Trial(None, None, b"", 3.1 / n + 4.3e-4, None)
 
-    monkeypatch.setattr(rate_control, "_fit_and_measure", fake_fit)
-    monkeypatch.setattr(rate_control, "mesh_prior", lambda job: (4.05, 4.3e-4))
-    monkeypatch.setattr(rate_control, "_smallest_within", lambda job, run, e, n, decode, alpha: (n, run.error))
+    monkeypatch.setattr(rc_error, "_fit_and_measure", fake_fit)
+    monkeypatch.setattr(rc_error, "mesh_prior", lambda job: (4.05, 4.3e-4))
+    monkeypatch.setattr(rc_error, "_smallest_within", lambda job, run, e, n, note: (n, run.error))
     n, err = rate_control.encode_to_error(None, 1e-3)
     assert err <= 1e-3 and len(calls) <= rate_control.MAX_ERROR_FITS
     assert n <= 1.25 * 3.1 / (1e-3 - 4.3e-4)
 
 
 def test_max_error_search_refuses_what_no_allowed_fit_reaches(search_only, monkeypatch):
-    monkeypatch.setattr(rate_control, "mesh_prior", lambda job: (rate_control.PRIOR_ERROR_POINTS, 0.0))
-    monkeypatch.setattr(
-        rate_control, "_fit_and_measure", lambda job, n, q, d: rate_control.Trial(None, None, b"", 5e-3, None)
-    )
+    monkeypatch.setattr(rc_error, "mesh_prior", lambda job: (rate_control.PRIOR_ERROR_POINTS, 0.0))
+    monkeypatch.setattr(rc_error, "_fit_and_measure", lambda job, n, q: rate_control.Trial(None, None, b"", 5e-3, None))
     with pytest.raises(InputError, match="could not reach|out of reach"):
         rate_control.encode_to_error(None, 1e-3)
 
@@ -209,10 +209,9 @@ def bumpy_sphere() -> tuple[np.ndarray, np.ndarray]:
 def test_prior_grows_with_detail_the_decimation_misses():
     """The per-mesh prior: a smooth sphere gets the base N x Chamfer, a bumpy one (same size) more; the same mesh
     gives the same prior (the decimation and its Chamfer samples are deterministic)."""
-    from tetweave_codec.encoder import Job
 
     def prior(v, f):
-        return rate_control.prior_error_points(Job(v, f, 1, None, "default", "cpu", 0, "sdf", None))
+        return rate_control.prior_error_points(make_job(v, f, FitSettings(1, None)))
 
     smooth = prior(*_mesh(manifold3d.Manifold.sphere(1.0, 160)))
     bumpy = prior(*bumpy_sphere())
@@ -252,8 +251,8 @@ def test_hole_cap_error_of_a_hemisphere():
 def test_max_error_beyond_the_prior_is_refused_before_any_fit(search_only, monkeypatch, floor, needle):
     """A target the per-mesh prior puts beyond MAX_RATE_POINTS (or below the hole caps' error) is refused with one
     line before any fit; the holes are named only when the input has some."""
-    monkeypatch.setattr(rate_control, "mesh_prior", lambda job: (2.0, floor))
-    monkeypatch.setattr(rate_control, "_fit_and_measure", lambda *a: pytest.fail("no fit expected"))
+    monkeypatch.setattr(rc_error, "mesh_prior", lambda job: (2.0, floor))
+    monkeypatch.setattr(rc_error, "_fit_and_measure", lambda *a: pytest.fail("no fit expected"))
     with pytest.raises(InputError, match="out of reach") as info:
         rate_control.encode_to_error(None, 5e-4 if floor else 2e-5)
     assert needle in str(info.value) and "\n" not in str(info.value)
@@ -261,11 +260,11 @@ def test_max_error_beyond_the_prior_is_refused_before_any_fit(search_only, monke
 
 
 def test_choose_keeps_the_steps_balanced_before_the_default_grid(monkeypatch):
-    """`_choose`: the default grid at steps up to BALANCED_STEP_SCALE x the default first, then another grid
+    """`choose`: the default grid at steps up to BALANCED_STEP_SCALE x the default first, then another grid
     within that, then the rule before (default grid up to x2.0, else the largest estimate under the aim, else the
     smallest file)."""
     from tetweave_codec.fit.config import default_quantization
-    from tetweave_codec.rate_control import BALANCED_STEP_SCALE, SIZE_AIM, Candidate, _choose
+    from tetweave_codec.rate_control import BALANCED_STEP_SCALE, SIZE_AIM, Candidate, choose
 
     assert BALANCED_STEP_SCALE == 1.4
     base = default_quantization(9479)  # b 9
@@ -276,13 +275,13 @@ def test_choose_keeps_the_steps_balanced_before_the_default_grid(monkeypatch):
         return [Candidate(int(est), bits, scale, None) for bits, scale, est in rows]
 
     def pick(rows):
-        chosen = _choose(cands(*rows), base, size, None, None, None)
+        chosen = choose(cands(*rows), base, size)
         return chosen.position_bits, chosen.scale
 
     # igea 20 KB: the default grid fits only at x2.8 (and x2.0 just over the aim); b 8 fits at x1
     rows = [(9, 2.8, aim - 600), (9, 2.0, aim + 400), (9, 1.4, aim + 1300), (8, 1.0, aim - 700), (8, 0.7, aim + 1000)]
     assert pick(rows) == (8, 1.0)
-    monkeypatch.setattr(rate_control, "BALANCED_STEP_SCALE", None)  # the rule before: the default grid first
+    monkeypatch.setattr(rc_size, "BALANCED_STEP_SCALE", None)  # the rule before: the default grid first
     assert pick(rows) == (9, 2.8)
     monkeypatch.undo()
     # the default grid fitting within the balanced steps wins over a coarser grid with a larger estimate
@@ -310,14 +309,13 @@ def test_feature_only_fit_meets_a_tight_target_on_a_cube():
 
 def test_feature_only_fit_is_not_tried_where_its_start_is_far(monkeypatch):
     """Three boxes (start at 64 points ~8e-2 from the input) and a sphere (no creases): no feature-only fit runs."""
-    from tetweave_codec.encoder import Job
 
-    monkeypatch.setattr(rate_control, "_fit_and_measure", lambda *a, **k: pytest.fail("no fit expected"))
+    monkeypatch.setattr(rc_error, "_fit_and_measure", lambda *a, **k: pytest.fail("no fit expected"))
     boxes = _mesh(
         manifold3d.Manifold.cube((1.2, 0.4, 0.4), center=True)
         + manifold3d.Manifold.cube((0.4, 1.2, 0.4), center=True)
         + manifold3d.Manifold.cube((0.4, 0.4, 1.2), center=True).translate((0.3, 0.2, 0.1))
     )
     for v, f in (boxes, sphere()):
-        job = Job(v, f, -1, None, "default", "cpu", 0, "sdf", None)
-        assert rate_control._feature_only_trial(job, 1e-3, decode) is None
+        job = make_job(v, f, FitSettings(-1, None))
+        assert rc_error._feature_only_trial(job, 1e-3) is None

@@ -14,7 +14,7 @@ is stored GRID_SPREAD bits finer (cell X as X << GRID_SPREAD). Lattice points ar
 Delaunay backends resolve that exactly (geometry.delaunay), and the finish drops points of flat tets as for any
 grid.
 
-Measured against the fit layout and the classical pipelines in benchmarks/results/grid_layout.md: fewer bytes at
+Measured against the fit layout and the classical pipelines in docs/measurements/grid_layout.md: fewer bytes at
 equal error on evenly detailed scans (igea, stanford-bunny), more on most other meshes; about half the encode
 time.
 """
@@ -112,12 +112,13 @@ def frame_for_cell(cell: float) -> GridFrame:
 
 
 class GridBand:
-    """The input surface (normalized frame), prepared for band queries at any cell size."""
+    """The input surface (normalized frame), prepared for band queries at any cell size. tree: a SurfaceTree of
+    these very vertices and faces when the caller has one (fit.prepared), else built here."""
 
-    def __init__(self, vertices: np.ndarray, faces: np.ndarray, seed: int = 0):
+    def __init__(self, vertices: np.ndarray, faces: np.ndarray, seed: int = 0, tree: SurfaceTree | None = None):
         self.vertices = np.ascontiguousarray(vertices, dtype=np.float64)
         self.faces = np.ascontiguousarray(faces, dtype=np.int64)
-        self.tree = SurfaceTree(self.vertices, self.faces)
+        self.tree = SurfaceTree(self.vertices, self.faces) if tree is None else tree
         self.area = float(face_areas(self.vertices, self.faces).sum())
         self.seed = seed
         self._last: tuple | None = None  # ((frame, band), (cells, s)) of the last `cells` query

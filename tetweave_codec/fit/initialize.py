@@ -325,16 +325,20 @@ def initial_state_pinned(
     position_bits: int | None = None,
     grid_scale: float = 1.0,
     plane_distances: bool = False,
+    detected: Features | None = None,
+    tree: SurfaceTree | None = None,
     **kwargs: float,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """``initial_state`` plus a (m,) bool mask of the feature points, which the fit keeps in place.
 
     With ``plane_distances`` (and feature points), every other point whose closest input point lies on a crease
-    or a corner takes its plane distance (``fit.features.polyhedral_distance``) instead of the Euclidean one."""
+    or a corner takes its plane distance (``fit.features.polyhedral_distance``) instead of the Euclidean one.
+    detected: ``detect_features(vertices, faces)`` when the caller has it (used with ``features``); tree: a
+    SurfaceTree of (vertices, faces) when the caller has one (fit.prepared: both computed once per encode)."""
     check_degree(sh_degree)  # ValueError
     rng = np.random.default_rng(seed)
-    feat = detect_features(vertices, faces) if features else None
-    tree = SurfaceTree(vertices, faces)
+    feat = (detected if detected is not None else detect_features(vertices, faces)) if features else None
+    tree = SurfaceTree(vertices, faces) if tree is None else tree
     state = None
     if feat is not None and feat.found:
         state = _feature_state(

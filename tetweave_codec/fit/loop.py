@@ -41,6 +41,7 @@ from tetweave_codec.fit.initialize import (
     signed_distance,
 )
 from tetweave_codec.fit.optim import set_deterministic
+from tetweave_codec.fit.prepared import PreparedInput
 from tetweave_codec.fit.relocate import cheapest_points
 from tetweave_codec.fit.resample import NearSurface, resample, voxel_importance
 from tetweave_codec.fit.step import (
@@ -136,7 +137,7 @@ def _distance_errors(vertices: Tensor, faces: Tensor, ctx: FitContext) -> tuple[
 
     The metric's own error, where renders at 160 px see normals only at pixel scale. Measured alone it is within
     the fit's seed-to-seed spread (it decides where the few passive points go); with relocation it decides where
-    a sixth of the points go (benchmarks/results/relocation.md).
+    a sixth of the points go (docs/measurements/relocation.md).
     """
     v = vertices.detach().cpu().numpy().astype(np.float64)
     f = faces.detach().cpu().numpy().astype(np.int64)
@@ -281,13 +282,16 @@ def fit_main(
     config: FitConfig,
     device: torch.device | str = "cpu",
     progress: ProgressFn | None = None,
+    prepared: PreparedInput | None = None,
 ) -> tuple[FitContext, Params]:
     """prepare -> start -> main stage: the part of a fit every encode path shares (`fit`, the encoder's Job,
     rate control, benchmarks/bitstream.py); each then finishes it its own way (fit.finish). Returns the context
-    (targets, timings) and the parameters after the main stage."""
+    (targets, timings) and the parameters after the main stage. prepared: the input prepared once per encode
+    (fit.prepared; its `normalized` and `faces` are `vertices` and `faces`), whose tree, creases and surface
+    samples the fit then reuses instead of computing them again."""
     with deterministic_torch():
-        ctx = prepare(vertices, faces, config, torch.device(device), progress or noop_progress)
-        params = start(vertices, faces, ctx)
+        ctx = prepare(vertices, faces, config, torch.device(device), progress or noop_progress, prepared)
+        params = start(vertices, faces, ctx, prepared)
         t0 = time.perf_counter()
         params = main_stage(params, ctx)
         ctx.seconds["main"] = time.perf_counter() - t0
@@ -316,16 +320,27 @@ class deterministic_torch:
 
 
 def prepare(
-    vertices: np.ndarray, faces: np.ndarray, config: FitConfig, device: torch.device, progress: ProgressFn
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    config: FitConfig,
+    device: torch.device,
+    progress: ProgressFn,
+    prepared: PreparedInput | None = None,
 ) -> FitContext:
-    """Validate the settings and render the targets: the context every stage shares."""
+    """Validate the settings and set up the 3-D term (and the renders, when a loss looks at them): the context
+    every stage shares. prepared: see `fit_main` (its surface samples and tree are reused)."""
     try:
         check_degree(config.sh_degree)
     except ValueError as exc:
         raise TetweaveError(str(exc)) from None
     t0 = time.perf_counter()
     progress("targets", 0, 1, {})
-    surface = SurfaceTarget(vertices, faces, seed=config.seed) if config.weights.surface > 0 else None
+    surface = None
+    if config.weights.surface > 0:
+        if prepared is not None:
+            surface = prepared.surface_target(config.seed)
+        else:
+            surface = SurfaceTarget(vertices, faces, seed=config.seed)
     targets = None
     if surface is None or config.weights.uses_images():  # else nothing looks at renders of the input
         targets = render_targets(vertices, faces, config.schedule.n_views, config.schedule.size, device=device)
@@ -342,8 +357,9 @@ def prepare(
     return ctx
 
 
-def start(vertices: np.ndarray, faces: np.ndarray, ctx: FitContext) -> Params:
-    """The initial points, s and c (SDF start near the input, or the paper's random ball)."""
+def start(vertices: np.ndarray, faces: np.ndarray, ctx: FitContext, prepared: PreparedInput | None = None) -> Params:
+    """The initial points, s and c (SDF start near the input, or the paper's random ball). prepared: see
+    `fit_main` (its creases and tree are reused)."""
     config = ctx.config
     t0 = time.perf_counter()
     n_start = max(64, min(config.points, int(round(config.points * config.schedule.start_fraction))))
@@ -360,6 +376,8 @@ def start(vertices: np.ndarray, faces: np.ndarray, ctx: FitContext) -> Params:
             position_bits=None if quant is None else quant.position_bits,
             grid_scale=1.0 if quant is None else quant.grid_scale,
             plane_distances=config.plane_distances,
+            detected=None if prepared is None or not config.features else prepared.features,
+            tree=None if prepared is None else prepared.tree,
         )
     elif config.init == "random":
         points, s, c = random_state(n_start, config.sh_degree, config.seed)

@@ -24,6 +24,7 @@ with inconsistent winding are fine. It costs no query (the faces come with the c
 
 from __future__ import annotations
 
+import copy
 from typing import NamedTuple
 
 import numpy as np
@@ -45,7 +46,7 @@ from tetweave_codec.geometry.triangles import (
 _EPS = 1e-6
 # Input surface samples per call (`SurfaceTarget.loss`'s per_call). As many as the control mesh has vertices
 # (2x-3x more at 8K-18K points) bought 1.5-2.5 % of bytes x Chamfer on spot and igea at 20-40 KB for 17-33 % more
-# CPU, and lost 5 % on the bunny (benchmarks/results/encode_speed.md, session 7): not kept.
+# CPU, and lost 5 % on the bunny (docs/measurements/encode_speed.md, 2026-12-01): not kept.
 INPUT_SAMPLES = 8_000
 # Calls for which the current mesh's AABB tree is reused while the mesh keeps the same faces (see `_MeshTree`).
 TREE_REUSE_CALLS = 4
@@ -77,12 +78,20 @@ class SurfaceTarget:
 
     vertices (V,3) float64 and faces (F,3) int64 in the normalized frame; n_samples input surface samples are
     drawn once from `seed`; each `loss` call uses `per_call` of them (a fresh random subset from `generator`).
+    tree: a SurfaceTree of these very vertices and faces when the caller has one (fit.prepared), else built here.
     """
 
-    def __init__(self, vertices: np.ndarray, faces: np.ndarray, n_samples: int = 200_000, seed: int = 0):
+    def __init__(
+        self,
+        vertices: np.ndarray,
+        faces: np.ndarray,
+        n_samples: int = 200_000,
+        seed: int = 0,
+        tree: SurfaceTree | None = None,
+    ):
         self.vertices = np.ascontiguousarray(vertices, dtype=np.float64)
         self.faces = np.ascontiguousarray(faces, dtype=np.int64)
-        self.tree = SurfaceTree(self.vertices, self.faces)
+        self.tree = SurfaceTree(self.vertices, self.faces) if tree is None else tree
         samples, face = sample_surface(self.vertices, self.faces, n_samples, seed)
         # In face order, and each call's subset in this order: nearby queries share their walk down the mesh's tree.
         order = np.argsort(face, kind="stable")
@@ -91,6 +100,13 @@ class SurfaceTarget:
         self.face_normals = face_normals(self.vertices, self.faces)  # (F,3) unit, zero rows for degenerate faces
         self.sample_normals = self.face_normals[face[order]]  # (n_samples,3)
         self._mesh_tree: _MeshTree | None = None
+
+    def fresh(self) -> SurfaceTarget:
+        """This input's term for another fit: the same samples and tree, no cached tree of a fitted mesh (a fit
+        reuses the tree of its own mesh for a few calls, `_tree_for`; another fit must not see it)."""
+        other = copy.copy(self)
+        other._mesh_tree = None
+        return other
 
     def closest_points(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Closest points (n,3) on the input surface to `points` (n,3) and the input face (n,) int64 of each."""
@@ -118,7 +134,7 @@ class SurfaceTarget:
         # Mesh -> input on points drawn by area over the faces, as the metric samples it. Measured at the vertices
         # (before), a flat face spanning a curved input cost nothing between its corners. With the renders off,
         # vertices -> area samples changed bytes x Chamfer at 10 KB by 0.87x on spot and fandisk in one run
-        # (benchmarks/results/encode_speed.md).
+        # (docs/measurements/encode_speed.md).
         n_samples = max(len(v_np) if min_samples is None else int(min_samples), per_call)
         sample_face, bary = draw_surface_samples(vertices, faces, n_samples, generator)
         on_faces = points_from_barycentrics(vertices, faces, sample_face, bary)

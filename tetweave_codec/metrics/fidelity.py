@@ -161,18 +161,30 @@ def chamfer_distance(
     if normalize:
         scale, offset = normalization(va)
         va, vb = to_frame(va, scale, offset), to_frame(vb, scale, offset)
-    opts = MetricOptions(n_samples=n_samples, seed=seed)
-    a, b = _prepare_points_only(va, fa, opts), _prepare_points_only(vb, fb, opts)
+    return chamfer_to_reference(prepare_points(va, fa, n_samples, seed), vb, fb, n_samples, seed)
+
+
+def chamfer_to_reference(a: SampledMesh, vb: np.ndarray, fb: np.ndarray, n_samples: int, seed: int = 0) -> float:
+    """`chamfer_distance` between a mesh A prepared once (`prepare_points`, its samples and tree reused for every
+    comparison: an encode's input) and mesh B (vb (V,3), fb (F,3)), both in the frame given; B is sampled with
+    `n_samples` points from `seed`, as A was."""
+    vb, fb = as_mesh(vb, fb)
+    b = prepare_points(vb, fb, n_samples, seed)
     d_ab, _ = point_surface_distance(a.points, b)
     d_ba, _ = point_surface_distance(b.points, a)
     return float(0.5 * (d_ab.mean() + d_ba.mean()))
 
 
-def _prepare_points_only(v: np.ndarray, f: np.ndarray, opts: MetricOptions) -> SampledMesh:
-    points, sample_faces = sample_surface(v, f, opts.n_samples, opts.seed)
-    tree = SurfaceTree(v, f)
+def prepare_points(
+    vertices: np.ndarray, faces: np.ndarray, n_samples: int, seed: int = 0, tree: SurfaceTree | None = None
+) -> SampledMesh:
+    """A mesh (vertices (V,3), faces (F,3), in the frame given) with `n_samples` area-weighted samples from `seed`
+    and its AABB tree (`tree` when the caller has one of these very arrays): one side of a Chamfer distance.
+    No normals or edge points (see `prepare_mesh` for those)."""
+    v, f = as_mesh(vertices, faces)
+    points, sample_faces = sample_surface(v, f, n_samples, seed)
     empty = np.zeros(len(points), dtype=bool)
-    return SampledMesh(v, f, np.zeros((0, 3)), points, sample_faces, empty, tree)
+    return SampledMesh(v, f, np.zeros((0, 3)), points, sample_faces, empty, tree or SurfaceTree(v, f))
 
 
 def _f1(precision: float, recall: float) -> float:

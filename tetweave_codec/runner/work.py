@@ -11,12 +11,15 @@ from __future__ import annotations
 
 import hashlib
 import time
-from dataclasses import asdict, dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from tetweave_codec.errors import error_line
+from tetweave_codec.options import LATER_OPTIONS, EncodeOptions, sh_degree_value
+
+__all__ = ["LATER_OPTIONS", "EncodeOptions", "Task", "decode_file", "encode_file", "mesh_sha256", "sh_degree_value"]
 
 
 @dataclass(frozen=True)
@@ -25,7 +28,7 @@ class Task:
 
     input: the input file. output: where the driver writes the result. key: the output's path relative to the
     output directory (the manifest's key). options: JSON-able options that decide the output bytes (for
-    `encode_file`, the fields of `EncodeOptions`). data: the input's bytes when the worker may not see the
+    `encode_file`, the fields of `options.EncodeOptions`). data: the input's bytes when the worker may not see the
     driver's files (Ray on several machines); None = read `input`.
     """
 
@@ -34,99 +37,6 @@ class Task:
     key: str
     options: dict
     data: bytes | None = None
-
-
-def sh_degree_value(text: str) -> int | None:
-    """The encoder's `sh_degree` for the CLI's --sh-degree: "auto" -> None (the encoder's choice), "none" -> -1."""
-    return {"auto": None, "none": -1}[text] if text in ("auto", "none") else int(text)
-
-
-# Options added to EncodeOptions after batch manifests existed, with the value runs before them had.
-LATER_OPTIONS = {"layout": "fit", "holes": "close", "keep_creases": None}
-
-
-@dataclass(frozen=True)
-class EncodeOptions:
-    """`tetweave encode`'s options for one file, as the encoder API takes them (see `encoder_kwargs`).
-
-    sh_degree: "auto", "none" or "0".."3". size: target bytes; max_error: target Chamfer distance (rate control).
-    format_version: 1 or 2. position_bits (fractional ones: formats.quantize.fractional_grid) / s_step / c_step:
-    v2 quantization overrides (None = the defaults for `points`; not with the grid layout, which has its own).
-    smoothing, subdivision: the decoder's Taubin steps and Loop levels (None = the encoder's default).
-    keep_creases: the smoothing keeps the surface's creases (None = the encoder's default). layout:
-    "fit", "grid" or "best" (encoder.LAYOUTS). holes: "close" or "keep" (encoder.HOLES: an open input's holes
-    spanned, or kept open). threads: torch CPU threads (0 = torch's default). measure: compute the Chamfer distance.
-    """
-
-    points: int = 16384
-    sh_degree: str = "auto"
-    layout: str = "fit"
-    holes: str = "close"
-    quality: str = "default"
-    iters: int | None = None
-    size: int | None = None
-    max_error: float | None = None
-    format_version: int = 2
-    position_bits: float | None = None
-    s_step: float | None = None
-    c_step: float | None = None
-    smoothing: int | None = None
-    subdivision: int | None = None
-    keep_creases: bool | None = None
-    device: str = "auto"
-    seed: int = 0
-    threads: int = 0
-    measure: bool = True
-
-    def as_dict(self) -> dict:
-        """The options as a batch manifest records them (`EncodeOptions(**d)` rebuilds them); options added after
-        manifests existed are left out at the value every earlier run had (LATER_OPTIONS), so a re-run of a batch
-        started before them still skips the files it finished."""
-        d = asdict(self)
-        for name, value in LATER_OPTIONS.items():
-            if d[name] == value:
-                del d[name]
-        return d
-
-    def encoder_kwargs(self, device) -> dict:
-        """Keyword arguments of `tetweave_codec.encoder.encode` (device: the resolved torch.device); the one
-        translation of these options, shared by single-file `tetweave encode` and every batch worker."""
-        from tetweave_codec.errors import InputError
-        from tetweave_codec.fit.config import default_quantization
-
-        overrides = (self.position_bits, self.s_step, self.c_step)
-        if self.layout != "fit" and any(x is not None for x in overrides):
-            raise InputError(
-                f"the {self.layout} layout chooses its own quantization: drop --position-bits, --s-step, --c-step"
-            )
-        quant = default_quantization(self.points)
-        if self.position_bits is not None:
-            from tetweave_codec.formats.quantize import fractional_grid
-
-            bits, grid_scale = fractional_grid(self.position_bits)
-            quant = replace(quant, position_bits=bits, grid_scale=grid_scale)
-        if self.s_step is not None:
-            quant = replace(quant, s_step=self.s_step)
-        if self.c_step is not None:
-            quant = replace(quant, c_band_steps=(self.c_step,) * 4)
-        return dict(
-            points=self.points,
-            sh_degree=sh_degree_value(self.sh_degree),
-            quality=self.quality,
-            iters=self.iters,
-            device=device,
-            seed=self.seed,
-            container_version=int(self.format_version),
-            quantization=quant if self.layout == "fit" else None,
-            layout=self.layout,
-            holes=self.holes,
-            size=self.size,
-            max_error=self.max_error,
-            measure=self.measure,
-            smoothing=self.smoothing,
-            subdivision=self.subdivision,
-            keep_creases=self.keep_creases,
-        )
 
 
 def mesh_sha256(vertices: np.ndarray, faces: np.ndarray) -> str:
@@ -158,11 +68,11 @@ def encode_file(task: Task) -> dict:
         mesh_key["mesh_sha256"] = mesh_sha256(vertices, faces)
         import torch
 
-        from tetweave_codec.encoder import encode, resolve_device
+        from tetweave_codec.encoder import encode
 
         if options.threads:
             torch.set_num_threads(options.threads)
-        result = encode(vertices, faces, **options.encoder_kwargs(resolve_device(options.device)))
+        result = encode(vertices, faces, options=options)
     except Exception as exc:  # bad input, unreachable target, a bug: a failed record, never a stopped batch
         return {**failed(exc, t0), **mesh_key}
     st = result.stats
