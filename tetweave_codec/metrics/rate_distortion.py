@@ -3,7 +3,7 @@
 A method family's settings give points (Chamfer distance, bytes). Its *front* is the Pareto subset (no other
 setting of the family is both smaller and more accurate), sorted by error. The family's size at an error e is read
 off its front by linear interpolation of log(bytes) against log(error); outside the front's error range it is
-unknown (never extrapolated). `tetweave bench` compares families this way (benchmarks/report.py: the verdict).
+unknown (never extrapolated). `tetweave bench` compares families this way (tetweave_codec/bench/report.py: the verdict).
 """
 
 from __future__ import annotations
