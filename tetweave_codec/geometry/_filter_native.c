@@ -158,6 +158,7 @@ static PyObject *loop(PyObject *self, PyObject *args) {
         goto done;
     }
     for (int64_t i = 0; i < nh; i++) {
+        opp[i] = -1; /* every row gets its face's third corner below, or the faces and rows do not match */
         start[e[2 * i] + 1]++;
         /* sorted rows: a repeated half-edge sits next to its copy; out of order means not `mesh_edges` */
         if (i > 0 && (e[2 * i] < e[2 * i - 2] || (e[2 * i] == e[2 * i - 2] && e[2 * i + 1] <= e[2 * i - 1]))) {
@@ -219,6 +220,10 @@ static PyObject *loop(PyObject *self, PyObject *args) {
         int64_t a = e[2 * i], bb = e[2 * i + 1];
         if (a > bb) continue;
         int64_t twin = find_half(e, start, bb, a);
+        if (twin < 0 || opp[i] < 0 || opp[twin] < 0) { /* checked above for twins; rows no face listed */
+            status = 1;
+            goto done;
+        }
         int64_t c = opp[i], d = opp[twin], id = nv + edge_id[i];
         for (int k = 0; k < 3; k++) {
             double ends = v[3 * a + k] + v[3 * bb + k];
