@@ -67,3 +67,39 @@ def test_one_preparation_per_encode(monkeypatch):
     result = encode(v, f, max_error=6e-3, **FAST)
     assert result.stats["chamfer"] <= 6e-3
     assert len(detections) == 1 and len(input_trees) == 1
+
+
+@pytest.mark.parametrize(
+    "options,needle",
+    [
+        ({"size": 5000, "max_error": 1e-3}, "either"),
+        ({"layout": "grid", "s_step": 1e-3}, "chooses its own quantization"),
+        ({"points": 10}, "points must be"),
+        ({"holes": "keep", "format_version": 1}, "version 2"),
+        ({"sh_degree": "7"}, "SH degree"),
+        ({"layout": "best", "points": 2048}, "best layout"),
+    ],
+)
+def test_options_are_validated_when_made(options, needle):
+    """EncodeOptions refuses what no encode can run, in one line, before any mesh is loaded."""
+    from tetweave_codec.errors import InputError
+    from tetweave_codec.options import EncodeOptions
+
+    with pytest.raises(InputError, match=needle) as info:
+        EncodeOptions(**options)
+    assert "\n" not in str(info.value)
+
+
+def test_options_object_runs_the_keyword_encode():
+    """encode(options=...) is encode(**options.encoder_kwargs(device)): the same bytes; not both at once."""
+    import torch
+
+    from tetweave_codec.options import EncodeOptions
+
+    v, f = _mesh(manifold3d.Manifold.sphere(1.0, 32))
+    opts = EncodeOptions(points=1024, sh_degree="0", quality="fast", iters=20, device="cpu", position_bits=8.5)
+    a = encode(v, f, options=opts)
+    b = encode(v, f, **opts.encoder_kwargs(torch.device("cpu")))
+    assert a.data == b.data and a.stats["chamfer"] == b.stats["chamfer"]
+    with pytest.raises(TypeError, match="either options or points"):
+        encode(v, f, options=opts, points=2048)
