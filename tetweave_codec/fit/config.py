@@ -200,7 +200,7 @@ class FitConfig:
     # optimizes through the same filter.
     creases: bool = False
     # Whether the main stage fits through the decoder's filter too (else only the late stage does, on the fixed
-    # points). Off with `creases` (encoder.Job): the creases of a surface whose points move come and go at every
+    # points). Off with `creases` (job.FitSettings): the creases of a surface whose points move come and go at every
     # iteration; fandisk, bytes x Chamfer against no smoothing, 5 / 10 / 20 KB: both stages 0.99 / 0.88 / 0.93,
     # the late stage alone 0.88 / 0.89 / 0.92 at less CPU (docs/measurements/creases.md, 2026-12-02).
     main_filter: bool = True

@@ -6,7 +6,7 @@ it. A face is a *cap* face when the point of the input nearest to its centroid l
 input and is not the centroid itself: the face is off the input, beyond its rim; optionally the caps grow into
 neighbours far from the input (a cap that sags into the shape). Removing them leaves the input's holes open; where
 a vertex would be left with two fans, its whole fan goes too (a few rounds), and failing that its faces stay, so
-the result is a 2-manifold with boundary. `encoder.Job.with_holes` picks between plain and grown caps by the
+the result is a 2-manifold with boundary. `packing.Packer.with_holes` picks between plain and grown caps by the
 decoded mesh's Chamfer distance (docs/measurements/holes.md).
 """
 
