@@ -25,8 +25,10 @@ STAGE_NAMES = {"main": "main stage", "late": "late stage"}
 BATCH_THREADS = 1
 
 
-def _progress_bar(total: int):
-    """A click progress bar on stderr fed by the fit's progress callback: stage, iteration, loss, points, ETA."""
+def _progress_bar(total: int, late_ratio: float):
+    """A click progress bar on stderr fed by the fit's progress callback: stage, iteration, loss, points, ETA.
+    total: the iterations expected; the bar resizes when a stage announces its own (the point count, and so the
+    scaled schedule, may be chosen from the input: then the late stage is guessed as `late_ratio` x the main)."""
     bar = click.progressbar(
         length=total,
         label="fitting",
@@ -42,6 +44,9 @@ def _progress_bar(total: int):
         if stage not in STAGE_NAMES:
             return
         offset = 0 if stage == "main" else state.get("main_total", 0)
+        if stage not in state:  # a stage's first report: its real length
+            state[stage] = True
+            bar.length = offset + stage_total + (round(late_ratio * stage_total) if stage == "main" else 0)
         if stage == "main":
             state["main_total"] = stage_total
         position = offset + done
@@ -85,8 +90,10 @@ def _progress_lines(every_s: float = PROGRESS_LINE_SECONDS):
 @click.option(
     "--points",
     type=CountType(),
-    default="16k",
-    help="Grid points during the fit (k = 1024); passive points are dropped before writing, so the file stores fewer.",
+    default=None,
+    help="Grid points during the fit (k = 1024); passive points are dropped before writing, so the file stores fewer. "
+    "[default: without --size or --max-error, chosen from the input: up to 16k, fewer for inputs whose decoded mesh "
+    "would get more than about 2x their faces]",
 )
 @click.option(
     "--sh-degree",
@@ -278,6 +285,7 @@ def _encode_batch(inputs, output, opts, jobs, use_ray, ray_address, force, quiet
 
 def _encode_one(mesh: Path, output: Path | None, opts, quiet: bool) -> None:
     """One file in this process, with the fit's own progress bar."""
+    from tetweave_codec.encoder import DEFAULT_POINTS
     from tetweave_codec.encoder import encode as encode_mesh
     from tetweave_codec.fit.config import scaled_schedule, schedule_for
     from tetweave_codec.meshio import load_mesh, write_bytes_atomic
@@ -290,8 +298,9 @@ def _encode_one(mesh: Path, output: Path | None, opts, quiet: bool) -> None:
     configure_torch(opts.threads, opts.device)
     vertices, faces = load_mesh(mesh)
     schedule = schedule_for(opts.quality, opts.iters)
+    late_ratio = schedule.late_iters / max(schedule.main_iters, 1)
     if opts.iters is None:  # the encoder scales the preset's iterations for smaller fits, as here
-        schedule = scaled_schedule(schedule, opts.points)
+        schedule = scaled_schedule(schedule, opts.points or DEFAULT_POINTS)
     size, max_error = opts.size, opts.max_error
     t0 = time.perf_counter()
     if quiet:
@@ -299,7 +308,7 @@ def _encode_one(mesh: Path, output: Path | None, opts, quiet: bool) -> None:
     elif sys.stderr.isatty() and size is None and max_error is None:  # rate control runs several fits
         # the grid layout runs the late stage only (its point count is about --points)
         iterations = schedule.late_iters + (schedule.main_iters if opts.layout != "grid" else 0)
-        bar, callback = _progress_bar(iterations)
+        bar, callback = _progress_bar(iterations, late_ratio)
         with bar:
             result = encode_mesh(vertices, faces, options=opts, progress=callback)
     else:
@@ -318,8 +327,32 @@ def _encode_one(mesh: Path, output: Path | None, opts, quiet: bool) -> None:
         + (f", the input's holes kept open ({st['hole_faces']:,} faces removed)" if st.get("hole_faces") else "")
     )
     click.echo(f"Chamfer distance to the input (normalized frame): {chamfer}")
+    click.echo(_context_line(result, len(faces)))
     if "target_bytes" in st:
         click.echo(f"size target {st['target_bytes']:,} bytes: wrote {st['bytes']:,} ({st['rate_control']})")
     if "target_error" in st:
         click.echo(f"error target {st['target_error']:.3g}: reached {chamfer} ({st['rate_control']})")
     click.echo(f"time {time.perf_counter() - t0:.1f}s on {st['device']} ({stages})")
+
+
+def _context_line(result, input_faces: int) -> str:
+    """The file in context: the decoded faces against the input's, and plain Draco of the input at the same Chamfer
+    distance (measured with the summary's own metric, `bench.anchor`), saying plainly when Draco is smaller."""
+    st = result.stats
+    faces = f"decoded faces {st['faces']:,} = {st['faces'] / max(input_faces, 1):.2f}x the input's {input_faces:,}"
+    if st["chamfer"] is None or result.prepared is None or not st["faces"]:
+        return faces
+    try:
+        from tetweave_codec.bench.anchor import draco_at_chamfer
+    except ImportError:  # DracoPy is a dependency; a broken install only loses the comparison
+        return faces
+    prepared = result.prepared
+    from tetweave_codec.packing import SUMMARY_CHAMFER_SAMPLES
+
+    match = draco_at_chamfer(
+        prepared.normalized,
+        prepared.faces,
+        st["chamfer"],
+        lambda v, f: prepared.normalized_chamfer(v, f, SUMMARY_CHAMFER_SAMPLES),
+    )
+    return f"{faces}; {match.describe(st['bytes'])}"

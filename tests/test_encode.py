@@ -221,6 +221,7 @@ def test_cli_flat_input_is_one_line(tmp_path):
         ["--subdivision", "1", "--format-version", "1", "--smoothing", "0"],
         ["--position-bits", "5.5"],
         ["--position-bits", "16.5"],
+        ["--s-step", "1e-3"],  # the default quantization follows a point count chosen from the input
     ],
 )
 def test_cli_nonsense_options(tmp_path, args):
@@ -242,6 +243,7 @@ def test_cli_encode_then_decode(tmp_path):
     res = CliRunner().invoke(main, ["encode", str(src), "--points", "1k", "--iters", "30", "--sh-degree", "0"])
     assert res.exit_code == 0, res.output
     assert "Chamfer" in res.output
+    assert f"the input's {len(f):,}" in res.output and "plain Draco of the input" in res.output
     tw = tmp_path / "torus.tw"
     assert tw.exists()
     out = tmp_path / "torus_decoded.obj"
@@ -303,3 +305,20 @@ def test_fractional_grid_sits_between_the_integer_grids(shape):
     assert stored.position_bits == 9 and np.abs(stored.points).max() <= k * Q.GRID_BOUND + Q.cell_size(9)
     # the file is an ordinary one: its transform carries 1 / k
     assert stored.scale == pytest.approx(unpack(fine.data).scale / k, rel=1e-12)
+
+
+def test_default_points_follow_the_input():
+    per_loop_point = encoder.CONTROL_FACES_PER_POINT * 4
+    spot = encoder.default_points(23_062, 1)
+    assert spot * per_loop_point <= encoder.DEFAULT_FACE_RATIO * 23_062 < (spot + 1) * per_loop_point
+    assert encoder.default_points(23_062, 0) == 4 * spot or encoder.default_points(23_062, 0) > 3.9 * spot
+    assert encoder.default_points(10**7, 1) == encoder.DEFAULT_POINTS
+    assert encoder.default_points(100, 1) == encoder.MIN_DEFAULT_POINTS
+
+
+def test_encode_without_a_rate_sizes_the_fit_from_the_input():
+    v, f = torus()
+    result = encode(v, f, iters=30, sh_degree=0, **FAST)
+    assert result.stats["points_target"] == encoder.default_points(len(f), 1)  # a torus gets one Loop level
+    assert result.stats["faces"] <= encoder.DEFAULT_FACE_RATIO * len(f)
+    assert result.prepared is not None and len(result.prepared.faces) == len(f)

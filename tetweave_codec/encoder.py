@@ -47,7 +47,16 @@ __all__ = [
     "resolve_device",
 ]
 
-DEFAULT_POINTS = 16384
+DEFAULT_POINTS = 16384  # the most grid points an encode without a rate option fits (`default_points`)
+# Without --points, --size or --max-error the fit's size follows the input (`default_points`): its decoded mesh
+# gets at most about DEFAULT_FACE_RATIO x the input's faces. A fixed 16K-point default turned spot's 23K faces
+# into 268K (issue 41); a user compressing a mesh does not expect a denser one back.
+DEFAULT_FACE_RATIO = 2.0
+# Marching-tets faces per fit grid point, before the decoder's Loop levels (x4 each): 4.1 (spot), 4.5 (igea),
+# 4.6 (stanford-bunny, fandisk) on the bench's 5 KB files (benchmarks/results/results.csv: faces / 4^levels /
+# grid points); the largest keeps the decoded faces under the ratio.
+CONTROL_FACES_PER_POINT = 4.6
+MIN_DEFAULT_POINTS = 256  # below this the fit cannot hold a shape; tiny inputs get it (and the summary's Draco line)
 DEFAULT_SH_DEGREE = 1
 # SH degree of CAD parts (`input_defaults`): none. fandisk, bytes x Chamfer of rate-controlled
 # files against degree 1 (docs/measurements/creases.md, 2026-12-01): 10 KB 0.87-0.92 (three seeds), 20 / 40 KB
@@ -122,7 +131,7 @@ def encode(
     vertices: np.ndarray,
     faces: np.ndarray,
     *,
-    points: int = DEFAULT_POINTS,
+    points: int | None = None,
     sh_degree: int | None = None,
     quality: str = "default",
     iters: int | None = None,
@@ -145,7 +154,8 @@ def encode(
     """Fit a TetWeave representation to a triangle mesh and return the `.tw` bytes and the decoded mesh.
 
     vertices (V,3), faces (F,3): any triangle mesh (open, multi-component and non-manifold inputs are fine).
-    points: target grid points during the fit (passive ones are dropped before writing, so fewer are stored).
+    points: target grid points during the fit (passive ones are dropped before writing, so fewer are stored);
+        None = `default_points` of the input's faces and the decoder's subdivision.
     sh_degree: -1 (none) or 0..3, directional distance coefficients per point (q = (degree+1)^2); None =
         `input_defaults`' choice.
     quality: "fast", "default" or "best" (see fit.QUALITY); iters overrides its main+late iteration count.
@@ -201,6 +211,8 @@ def encode(
         subdivision = chosen.subdivision if subdivision is None else subdivision
         sh_degree = chosen.sh_degree if sh_degree is None else sh_degree
         keep_creases = chosen.creases if keep_creases is None else keep_creases
+    if points is None:
+        points = default_points(len(f), subdivision)
     settings = FitSettings(
         sh_degree=sh_degree,
         schedule=schedule_for(quality, iters),
@@ -237,6 +249,14 @@ def encode(
     with deterministic_torch():
         fin = complete(fixed, ctx, quantization)
     return job.result(fin, ctx, points, measure=measure)
+
+
+def default_points(input_faces: int, subdivision: int) -> int:
+    """Grid points of an encode without a rate option: the most (up to DEFAULT_POINTS, at least
+    MIN_DEFAULT_POINTS) whose decoded mesh has about DEFAULT_FACE_RATIO x `input_faces` faces or fewer, given the
+    decoder's `subdivision` Loop levels (each multiplies the faces by 4)."""
+    per_point = CONTROL_FACES_PER_POINT * 4**subdivision
+    return int(min(DEFAULT_POINTS, max(MIN_DEFAULT_POINTS, DEFAULT_FACE_RATIO * input_faces / per_point)))
 
 
 def _check_no_other_options(given: dict) -> None:
@@ -288,7 +308,7 @@ def _best_layout(make_job, size: int | None, max_error: float | None) -> EncodeR
     stats = dict(chosen.stats, layouts=tried)
     stats["rate_control"] = f"best layout {best} ({chosen.stats['rate_control']}; {others})"
     stats["seconds"] = dict(stats["seconds"], total=time.perf_counter() - t0)
-    return EncodeResult(chosen.data, chosen.vertices, chosen.faces, stats)
+    return EncodeResult(chosen.data, chosen.vertices, chosen.faces, stats, chosen.prepared)
 
 
 class InputDefaults(NamedTuple):

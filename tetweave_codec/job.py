@@ -29,12 +29,15 @@ class EncodeResult:
 
     data: the `.tw` file. vertices (V,3) float64 and faces (F,3) int64: the decoded mesh, in the input's frame.
     stats: points_kept, sh_degree, bytes, seconds per stage, chamfer (normalized frame; None if not measured), ...
+    prepared: the encode's prepared input (its normalized mesh and Chamfer reference), for comparisons measured
+    with the summary's own metric (`bench.anchor`, the CLI's plain-Draco line).
     """
 
     data: bytes
     vertices: np.ndarray
     faces: np.ndarray
     stats: dict = field(default_factory=dict)
+    prepared: PreparedInput | None = field(default=None, repr=False)
 
 
 @dataclass(frozen=True)
@@ -193,7 +196,7 @@ class Job:
         stats.update(extra or {})
         if measure and chamfer is None and len(out_f):
             stats["chamfer"] = self.chamfer(out_v, out_f)
-        return EncodeResult(data, out_v, out_f, stats)
+        return EncodeResult(data, out_v, out_f, stats, self.input)
 
 
 def fit_layout_stage(

@@ -13,6 +13,7 @@ from dataclasses import asdict, dataclass, replace
 from tetweave_codec.errors import InputError
 
 MAX_POINTS = 1 << 22
+DEFAULT_QUANTIZATION_POINTS = 16384  # the quantization overrides' base when rate control picks the points
 # Where a file's points come from: "fit" places them by optimization (fit.loop), "grid" takes the cells of a band
 # around the input (fit.grid), "best" encodes both (rate control only) and keeps the better file: the lower error
 # for --size, the smaller file for --max-error. Same container, same decoder.
@@ -28,7 +29,7 @@ LATER_OPTIONS = {"layout": "fit", "holes": "close", "keep_creases": None}
 
 def check_encode_arguments(
     *,
-    points: int,
+    points: int | None,
     sh_degree: int | None,
     container_version: int,
     size: int | None,
@@ -48,7 +49,7 @@ def check_encode_arguments(
     from tetweave_codec.geometry.sh import check_degree
     from tetweave_codec.geometry.smoothing import MAX_STEPS as MAX_SMOOTHING_STEPS
 
-    if size is None and max_error is None and not 64 <= points <= MAX_POINTS:
+    if size is None and max_error is None and points is not None and not 64 <= points <= MAX_POINTS:
         raise InputError(f"points must be between 64 and {MAX_POINTS}, got {points}")
     if sh_degree is not None:
         try:
@@ -94,6 +95,7 @@ class EncodeOptions:
     quantization overrides only with the fit layout). JSON-able: a batch manifest records `as_dict()`.
 
     sh_degree: "auto", "none" or "0".."3". size: target bytes; max_error: target Chamfer distance (rate control).
+    points: the fit's grid points; None = the encoder's choice from the input (`encoder.default_points`).
     format_version: 1 or 2. position_bits (fractional ones: formats.quantize.fractional_grid) / s_step / c_step:
     v2 quantization overrides (None = the defaults for `points`; not with the grid layout, which has its own).
     smoothing, subdivision: the decoder's Taubin steps and Loop levels (None = the encoder's default).
@@ -104,7 +106,7 @@ class EncodeOptions:
     the CLI and the batch workers). measure: compute the Chamfer distance.
     """
 
-    points: int = 16384
+    points: int | None = None
     sh_degree: str = "auto"
     layout: str = "fit"
     holes: str = "close"
@@ -136,6 +138,10 @@ class EncodeOptions:
             raise InputError(
                 f"the {self.layout} layout chooses its own quantization: drop --position-bits, --s-step, --c-step"
             )
+        rate_given = self.size is not None or self.max_error is not None
+        if self.points is None and not rate_given and any(x is not None for x in overrides):
+            # the default quantization follows the point count, which without --points is chosen from the input
+            raise InputError("--position-bits, --s-step and --c-step need --points (or --size / --max-error)")
         check_encode_arguments(
             points=self.points,
             sh_degree=sh_degree_value(self.sh_degree),
@@ -165,7 +171,11 @@ class EncodeOptions:
         translation of these options, which `encode(..., options=...)` applies."""
         from tetweave_codec.fit.config import default_quantization
 
-        quant = default_quantization(self.points)
+        overrides = (self.position_bits, self.s_step, self.c_step)
+        if self.points is None and all(x is None for x in overrides):
+            quant = None  # the encoder chooses the points from the input, then their default quantization
+        else:  # (points None here only with --size / --max-error, whose rate control chooses its own quantization)
+            quant = default_quantization(self.points or DEFAULT_QUANTIZATION_POINTS)
         if self.position_bits is not None:
             from tetweave_codec.formats.quantize import fractional_grid
 
@@ -183,7 +193,7 @@ class EncodeOptions:
             device=device,
             seed=self.seed,
             container_version=int(self.format_version),
-            quantization=quant if self.layout == "fit" else None,
+            quantization=quant if self.layout == "fit" else None,  # None with points None: no overrides (validate)
             layout=self.layout,
             holes=self.holes,
             size=self.size,
