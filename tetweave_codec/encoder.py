@@ -73,7 +73,7 @@ CREASED_SMOOTHING = 3
 # Crease density (`fit.features.crease_density`: crease length / sqrt(area)) from which an input with sharp creases is a
 # CAD part and takes the settings above (`input_defaults`); below it, the smooth-mesh settings (one smoothing step, one
 # Loop level, SH degree 1) with the creases kept. Shapes whose every face is bounded by creases lie above (a cube 4.90,
-# a regular tetrahedron 4.56, boxes and prisms more; fandisk 8.83, the CSG parts of benchmarks/creases.py 5.8-10.3),
+# a regular tetrahedron 4.56, boxes and prisms more; fandisk 8.83, CSG parts 5.8-10.3: creases.py at ffee759),
 # shapes whose creases bound curved faces and organic models with a few sharp details below (a cylinder 2.89, a sphere
 # cut by a plane 1.45, a capsule with a flat end 1.14, beast 1.02, cheburashka 0.50). Bytes x Chamfer of --size files,
 # smooth settings with creases kept against the CAD settings, one thread, one run: the cut sphere 2 / 5 KB 0.94 / 0.94,

@@ -214,13 +214,13 @@ class FitConfig:
 
 
 # Taubin steps of `tetweave encode` (container v2; on CAD parts encoder.input_defaults takes
-# crease-preserving steps instead, encoder.CREASED_SMOOTHING). Measured with benchmarks/fit_ab.py
+# crease-preserving steps instead, encoder.CREASED_SMOOTHING). Measured with benchmarks/fit_ab.py (at ffee759)
 # (docs/measurements/smoothing.md): bytes x Chamfer against no smoothing, 1 step: spot 0.82-0.87, stanford-bunny
 # 0.94-0.99, igea 0.96-1.01, fandisk 0.95-1.06 (16 cases, median 0.96); 2 steps helped spot more (0.78) but cost
 # igea 11 % and fandisk 5 %.
 DEFAULT_SMOOTHING = 1
 # Loop levels of `tetweave encode` after the smoothing (none on CAD parts). Measured with
-# benchmarks/fit_ab.py (docs/measurements/subdivision.md): bytes x Chamfer against the smoothing alone, one level:
+# fit_ab.py at ffee759 (docs/measurements/subdivision.md): bytes x Chamfer against the smoothing alone, one level:
 # spot 0.66-0.82, stanford-bunny 0.89-0.95, igea 0.91-0.98 (9 cases, median 0.90) for 1.2-1.8x the CPU time; two
 # levels gained 0.4-3 % more for 2-3x the time again.
 DEFAULT_SUBDIVISION = 1

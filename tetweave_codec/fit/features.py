@@ -94,7 +94,7 @@ def unique_rows(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The distinct rows of rows (N,k) in lexicographic order (M,k), the index (N,) of each row among them and
     the count (M,) of each: ``np.unique(rows, axis=0, return_inverse=True, return_counts=True)``, 2-3x faster on
     vertices and 5-9x on edges (a stable lexsort of the columns instead of numpy's sort of a structured view;
-    benchmarks/unique_rows_speed.py). Rows compare by value (-0.0 equals 0.0); no NaN."""
+    benchmarks/unique_rows_speed.py at ffee759). Rows compare by value (-0.0 equals 0.0); no NaN."""
     a = np.asarray(rows)
     if len(a) == 0:
         return a.reshape(0, *a.shape[1:]), np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)

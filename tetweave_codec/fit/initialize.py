@@ -6,7 +6,7 @@ multi-view reconstruction nothing is known about the shape. An encoder knows its
 near the answer: most points sit in a thin shell around the input surface and s is the input's signed
 distance, so Delaunay + marching tetrahedra of the initial state already reproduce the input up to the grid
 resolution.
-``random_state`` is the paper's start, kept for comparison (``benchmarks/init_compare.py``).
+``random_state`` is the paper's start, kept for comparison (``benchmarks/init_compare.py``, in history at ffee759).
 
 All positions are in the normalized frame: the input's bounding box fits [-0.9, 0.9]^3 and the points fill
 [-BOX, BOX]^3. Inside the shape s < 0.
@@ -55,7 +55,7 @@ MIN_ABS_S = 2.0**-14
 # sqrt(area / n); at most this fraction of the points go to features (the spacing grows otherwise); shell points
 # closer to a crease than CREASE_CLEARANCE crease spacings are dropped. 1 KB files (--size 1024), Chamfer at
 # clearance 1.5 / 0.8: cube 1.39e-3 / 1.52e-3, three boxes 1.67e-2 / 4.94e-3 (0.5: 4.81e-3, 1.0: 1.11e-2),
-# cube minus cylinder 6.61e-3 / 5.33e-3 (benchmarks/creases.py).
+# cube minus cylinder 6.61e-3 / 5.33e-3 (benchmarks/creases.py at ffee759).
 CREASE_SPACING = 1.0
 MAX_FEATURE_FRACTION = 0.5
 CREASE_CLEARANCE = 0.8
