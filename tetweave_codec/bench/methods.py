@@ -134,22 +134,22 @@ class TetweaveMethod(Method):
 
     def encode(self, vertices: np.ndarray, faces: np.ndarray) -> bytes:
         from tetweave_codec.encoder import encode
+        from tetweave_codec.options import EncodeOptions
 
-        result = encode(
-            vertices,
-            faces,
+        degree = self.sh_degree
+        options = EncodeOptions(  # the options `tetweave encode` builds, validated the same way
             points=self.points,
-            sh_degree=self.sh_degree,
+            sh_degree="auto" if degree is None else ("none" if degree < 0 else str(degree)),
             quality=self.quality,
             iters=self.iters,
-            device=self.device,
+            device=str(getattr(self.device, "type", self.device)),  # a torch.device or its name
             seed=self.seed,
-            progress=self.progress,
             measure=False,  # the benchmark measures the decoded mesh itself
             size=self.size,
             layout=self.layout,
             holes=self.holes,
         )
+        result = encode(vertices, faces, options=options, progress=self.progress)
         self.points_used = result.stats["points_target"]
         return result.data
 
