@@ -343,38 +343,46 @@ static int grid(const double *lo, const double *hi, int64_t n, double cell, cons
     return 0;
 }
 
-static PyObject *faces_flags(PyObject *self, PyObject *args) {
+/* The arguments of faces_flags and marked_flags: vertices (V,3) float64, faces (F,3) int64, flags (F,) uint8 (the
+ * output), only (F,) uint8; *nf = F. 0 with the four buffers held, or -1 with an exception set and none held. */
+static int get_face_buffers(PyObject *args, Py_buffer *bv, Py_buffer *bf, Py_buffer *bo, Py_buffer *bm, int64_t *nf) {
     PyObject *ov, *of, *oo, *om;
-    if (!PyArg_ParseTuple(args, "OOOO", &ov, &of, &oo, &om)) return NULL;
-    Py_buffer bv, bf, bo, bm;
-    if (PyObject_GetBuffer(ov, &bv, PyBUF_C_CONTIGUOUS) < 0) return NULL;
-    if (bv.itemsize != 8 || bv.len % 24) {
-        PyBuffer_Release(&bv);
+    if (!PyArg_ParseTuple(args, "OOOO", &ov, &of, &oo, &om)) return -1;
+    if (PyObject_GetBuffer(ov, bv, PyBUF_C_CONTIGUOUS) < 0) return -1;
+    if (bv->itemsize != 8 || bv->len % 24) {
+        PyBuffer_Release(bv);
         PyErr_SetString(PyExc_ValueError, "vertices: (V,3) float64");
-        return NULL;
+        return -1;
     }
-    if (PyObject_GetBuffer(of, &bf, PyBUF_C_CONTIGUOUS) < 0) {
-        PyBuffer_Release(&bv);
-        return NULL;
+    if (PyObject_GetBuffer(of, bf, PyBUF_C_CONTIGUOUS) < 0) {
+        PyBuffer_Release(bv);
+        return -1;
     }
-    if (bf.itemsize != 8 || bf.len % 24) {
-        PyBuffer_Release(&bv);
-        PyBuffer_Release(&bf);
+    if (bf->itemsize != 8 || bf->len % 24) {
+        PyBuffer_Release(bv);
+        PyBuffer_Release(bf);
         PyErr_SetString(PyExc_ValueError, "faces: (F,3) int64");
-        return NULL;
+        return -1;
     }
-    int64_t nf = bf.len / 24;
-    if (get_buffer(oo, &bo, 1, nf, "flags") < 0) {
-        PyBuffer_Release(&bv);
-        PyBuffer_Release(&bf);
-        return NULL;
+    *nf = bf->len / 24;
+    if (get_buffer(oo, bo, 1, *nf, "flags") < 0) {
+        PyBuffer_Release(bv);
+        PyBuffer_Release(bf);
+        return -1;
     }
-    if (get_buffer(om, &bm, 1, nf, "only") < 0) {
-        PyBuffer_Release(&bv);
-        PyBuffer_Release(&bf);
-        PyBuffer_Release(&bo);
-        return NULL;
+    if (get_buffer(om, bm, 1, *nf, "only") < 0) {
+        PyBuffer_Release(bv);
+        PyBuffer_Release(bf);
+        PyBuffer_Release(bo);
+        return -1;
     }
+    return 0;
+}
+
+static PyObject *faces_flags(PyObject *self, PyObject *args) {
+    Py_buffer bv, bf, bo, bm;
+    int64_t nf;
+    if (get_face_buffers(args, &bv, &bf, &bo, &bm, &nf) < 0) return NULL;
     const uint8_t *only = (const uint8_t *)bm.buf;
     const double *v = (const double *)bv.buf;
     const int64_t *f = (const int64_t *)bf.buf;
@@ -589,37 +597,9 @@ static void face_data(const double *v, const int64_t *f, int64_t face, const dou
  * same dense lattice) that every valid face's box scans, each pair once (in the cell of its larger lower corner; a pair of two marked
  * faces from its lower face), the lower face first as in `faces`. */
 static PyObject *marked_flags(PyObject *self, PyObject *args) {
-    PyObject *ov, *of, *oo, *om;
-    if (!PyArg_ParseTuple(args, "OOOO", &ov, &of, &oo, &om)) return NULL;
     Py_buffer bv, bf, bo, bm;
-    if (PyObject_GetBuffer(ov, &bv, PyBUF_C_CONTIGUOUS) < 0) return NULL;
-    if (bv.itemsize != 8 || bv.len % 24) {
-        PyBuffer_Release(&bv);
-        PyErr_SetString(PyExc_ValueError, "vertices: (V,3) float64");
-        return NULL;
-    }
-    if (PyObject_GetBuffer(of, &bf, PyBUF_C_CONTIGUOUS) < 0) {
-        PyBuffer_Release(&bv);
-        return NULL;
-    }
-    if (bf.itemsize != 8 || bf.len % 24) {
-        PyBuffer_Release(&bv);
-        PyBuffer_Release(&bf);
-        PyErr_SetString(PyExc_ValueError, "faces: (F,3) int64");
-        return NULL;
-    }
-    int64_t nf = bf.len / 24;
-    if (get_buffer(oo, &bo, 1, nf, "flags") < 0) {
-        PyBuffer_Release(&bv);
-        PyBuffer_Release(&bf);
-        return NULL;
-    }
-    if (get_buffer(om, &bm, 1, nf, "only") < 0) {
-        PyBuffer_Release(&bv);
-        PyBuffer_Release(&bf);
-        PyBuffer_Release(&bo);
-        return NULL;
-    }
+    int64_t nf;
+    if (get_face_buffers(args, &bv, &bf, &bo, &bm, &nf) < 0) return NULL;
     const uint8_t *only = (const uint8_t *)bm.buf;
     const double *v = (const double *)bv.buf;
     const int64_t *f = (const int64_t *)bf.buf;
