@@ -343,6 +343,24 @@ static int grid(const double *lo, const double *hi, int64_t n, double cell, cons
     return 0;
 }
 
+/* The closed box lo (3,), hi (3,) of triangle p0 p1 p2 and its extent, the longest side of the box: the grid's
+ * entries of `faces` and `marked_flags` alike. */
+static double face_box(const double *p0, const double *p1, const double *p2, double *lo, double *hi) {
+    double x = 0;
+    for (int k = 0; k < 3; k++) {
+        double a = p0[k], b = p1[k], d = p2[k];
+        double mn = a, mx = a;
+        if (b < mn) mn = b;
+        if (d < mn) mn = d;
+        if (b > mx) mx = b;
+        if (d > mx) mx = d;
+        lo[k] = mn;
+        hi[k] = mx;
+        if (k == 0 || mx - mn > x) x = mx - mn;
+    }
+    return x;
+}
+
 /* The arguments of faces_flags and marked_flags: vertices (V,3) float64, faces (F,3) int64, flags (F,) uint8 (the
  * output), only (F,) uint8; *nf = F. 0 with the four buffers held, or -1 with an exception set and none held. */
 static int get_face_buffers(PyObject *args, Py_buffer *bv, Py_buffer *bf, Py_buffer *bo, Py_buffer *bm, int64_t *nf) {
@@ -416,19 +434,7 @@ static PyObject *faces_flags(PyObject *self, PyObject *args) {
         normal[3 * n] = c[0];
         normal[3 * n + 1] = c[1];
         normal[3 * n + 2] = c[2];
-        double x = 0;
-        for (int k = 0; k < 3; k++) {
-            double a = p0[k], b = p1[k], d = p2[k];
-            double mn = a, mx = a;
-            if (b < mn) mn = b;
-            if (d < mn) mn = d;
-            if (b > mx) mx = b;
-            if (d > mx) mx = d;
-            lo[3 * n + k] = mn;
-            hi[3 * n + k] = mx;
-            if (k == 0 || mx - mn > x) x = mx - mn;
-        }
-        ext[n] = x;
+        ext[n] = face_box(p0, p1, p2, lo + 3 * n, hi + 3 * n);
         n++;
     }
     if (nf < 2 || n < 2) goto done;
@@ -633,19 +639,10 @@ static PyObject *marked_flags(PyObject *self, PyObject *args) {
         cross3(e1, e2, c);
         valid[i] = dot3(c, c) > 0;
         if (!valid[i]) continue;
-        double x = 0;
+        double x = face_box(p0, p1, p2, lo + 3 * i, hi + 3 * i);
         for (int k = 0; k < 3; k++) {
-            double a = p0[k], b = p1[k], d = p2[k];
-            double mn = a, mx = a;
-            if (b < mn) mn = b;
-            if (d < mn) mn = d;
-            if (b > mx) mx = b;
-            if (d > mx) mx = d;
-            lo[3 * i + k] = mn;
-            hi[3 * i + k] = mx;
-            if (k == 0 || mx - mn > x) x = mx - mn;
-            if (n == 0 || mn < origin[k]) origin[k] = mn;
-            if (n == 0 || mx > top[k]) top[k] = mx;
+            if (n == 0 || lo[3 * i + k] < origin[k]) origin[k] = lo[3 * i + k];
+            if (n == 0 || hi[3 * i + k] > top[k]) top[k] = hi[3 * i + k];
         }
         ext[n++] = x;
         k_marked += only[i] != 0;
