@@ -158,3 +158,68 @@ def test_committed_files_decode_to_the_references_bits(path, monkeypatch):
         monkeypatch.setattr(module, "NATIVE", False)
     slow = decode(data)
     assert fast[0].tobytes() == slow[0].tobytes() and fast[1].tobytes() == slow[1].tobytes()
+
+
+def double_fan(k: int, turns: int, height) -> tuple[np.ndarray, np.ndarray]:
+    """k faces around vertex 0 whose link winds `turns` times around it, at heights height(angle)."""
+    angle = 2 * np.pi * turns * np.arange(k) / k
+    v = np.concatenate([[[0.0, 0, 0]], np.stack([np.cos(angle), np.sin(angle), height(angle)], 1)])
+    return v, np.array([[0, 1 + i, 1 + (i + 1) % k] for i in range(k)])
+
+
+def stars_and_faces(v, f, only, children):
+    """(status, flags) of `stars` and the flags of `faces` (status 0)."""
+    native = intersections._intersect_native
+    fast, ref = np.zeros(len(f), np.uint8), np.zeros(len(f), np.uint8)
+    status = native.stars(v, f, fast, only.view(np.uint8), children)
+    assert native.faces(v, f, ref, only.view(np.uint8)) == 0
+    return status, fast, ref
+
+
+@needs_intersect
+@pytest.mark.parametrize("seed", range(4))
+@pytest.mark.parametrize("share", [0.0, 0.05, 0.4])
+def test_the_patch_check_of_a_loop_level_is_the_full_checks(seed, share):
+    """`stars` on Loop levels of control surfaces, smoothed and jittered (0: most patches shown free of crossings;
+    0.4 of an edge: folds inside patches, crossings between the two spheres), all faces or some marked, against
+    `faces`; the same with children=1 (patches around every vertex)."""
+    v0, f0 = marching_surface(seed, n=1000, shape="spheres" if seed % 2 else "torus")
+    rng = np.random.default_rng(seed)
+    moved = jitter(smoothing.taubin(v0, f0, 1), f0, rng, share) if share else smoothing.taubin(v0, f0, 1)
+    v, _, f = subdivision.loop_and_midpoint(moved, v0, f0, 1)
+    crossing = 0
+    for children in (4, 1):
+        for only in (np.ones(len(f), bool), rng.random(len(f)) < 0.3):
+            status, fast, ref = stars_and_faces(v, f, only, children)
+            assert status == 0
+            np.testing.assert_array_equal(fast, ref)
+            crossing += int(ref.sum())
+    assert crossing > 0 or share < 0.4
+
+
+@needs_intersect
+@pytest.mark.parametrize("k", [9, 11, 14])
+def test_a_fan_that_winds_twice_is_tested_not_passed(k):
+    """Every face of a twice-wound fan keeps its orientation along the summed normal; only the winding count tells
+    that its faces overlap, and those that cross (sharing vertex 0 alone) must be flagged as `faces` flags them."""
+    v, f = double_fan(k, 2, lambda a: 0.5 * np.cos(a / 2))
+    status, fast, ref = stars_and_faces(v, f, np.ones(len(f), bool), 1)
+    assert status == 0 and ref.sum() == 2
+    np.testing.assert_array_equal(fast, ref)
+    v, f = double_fan(k, 1, lambda a: 0.1 * np.cos(a))  # once: a clean fan
+    status, fast, ref = stars_and_faces(v, f, np.ones(len(f), bool), 1)
+    assert status == 0 and not ref.any() and not fast.any()
+
+
+@needs_intersect
+def test_the_patch_check_declines_runs_that_are_not_loop_children():
+    """Faces shuffled out of their runs of four: undecided with children=4 (flags all 0), and the public check
+    then answers as `faces` does."""
+    v0, f0 = marching_surface(5, n=800, shape="spheres")
+    v, _, f = subdivision.loop_and_midpoint(jitter(v0, f0, np.random.default_rng(5)), v0, f0, 1)
+    f = f[np.random.default_rng(0).permutation(len(f))]
+    only = np.ones(len(f), bool)
+    status, fast, ref = stars_and_faces(v, f, only, 4)
+    assert status == 2 and not fast.any() and ref.any()
+    np.testing.assert_array_equal(self_intersecting_faces(v, f, children=4), ref.astype(bool))
+    assert stars_and_faces(v, f, only, 1)[0] == 0  # as plain faces: decided

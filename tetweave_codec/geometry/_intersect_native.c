@@ -796,7 +796,537 @@ done:
     return PyLong_FromLong(status);
 }
 
+/* ------------------------------------------------------------------------------------------------------------
+ * stars(vertices (V,3) float64, faces (F,3) int64, flags (F,) uint8 out, only (F,) uint8, children int) -> 0:
+ * decided, flags are exactly what faces(vertices, faces, flags, only) writes; 2: undecided (flags all 0: the
+ * caller runs `faces`).
+ *
+ * The first check of a filtered surface, without a grid over its faces. `children` is 1, or 4 when the faces come
+ * in runs of four, the children of one face of the level before (geometry.subdivision.loop_level: the corner
+ * children (a, m_ab, m_ca), (m_ab, b, m_bc), (m_ca, m_bc, c) and the middle one (m_ab, m_bc, m_ca)); "parents" are
+ * those faces (children 1: the faces themselves). Every pair of valid faces with overlapping closed boxes and a
+ * face marked in `only` is either tested with pair_intersects, the lower face first, as `faces` tests it, or
+ * shown not to cross:
+ *
+ * - Parents that share no vertex: their children share no vertex either; a grid over the parents' boxes (the
+ *   union of their children's) lists the parent pairs whose boxes overlap, and each pair of their children whose
+ *   boxes overlap is tested.
+ * - Parents that share a vertex u: both lie in u's patch, the children of the parents around u. The patch is a
+ *   disk (a closed fan of parents, checked, refined as loop_level refines it). Projected along N, the sum of its
+ *   faces' normals, every face of the patch has twice its area at least STAR_MARGIN times its longest edge squared, and
+ *   its boundary turns around u by at least STAR_MARGIN (sine of the angle) at every step and once in all: the
+ *   projection of a disk whose faces all keep their orientation and whose boundary is a simple closed curve is
+ *   one-to-one (each point inside the curve has one preimage, counted with orientation), so no two faces of the
+ *   patch meet outside the vertices and edges they share, by a margin ten orders of magnitude above the rounding
+ *   of pair_intersects, which therefore answers 0 for each of the patch's pairs. A patch that fails this has all
+ *   its pairs tested.
+ *
+ * `faces` answers with that pair set unless its grid fails at its first cell size; first_grid_feasible() proves
+ * it does not (as `marked` does), else this is undecided. Undecided also when the runs are not Loop children or
+ * the parents' grid would be too large: the caller then runs `faces`.
+ * ------------------------------------------------------------------------------------------------------------ */
+#define STAR_MARGIN 1e-6
+#define MAX_STAR 64 /* parents around one vertex that a patch takes; more: its pairs are tested */
+#define MAX_PARENT_PAIRS 64000000LL
+
+/* The faces of one check. Boxes and normals are computed where they are needed, not stored: storing them for
+ * 320K faces cost more in fresh pages than computing them three times. */
+typedef struct {
+    const double *v;
+    const int64_t *f;
+    const uint8_t *valid, *only;
+    uint8_t *flags;
+} CheckFaces;
+
+/* Face i's corners (9 coordinates), normal (x1 - x0) x (x2 - x0) and closed box (lo xyz, hi xyz), as `faces`
+ * computes them. */
+static inline void face_geometry(const CheckFaces *s, int64_t i, double *corners, double *normal, double *box) {
+    const int64_t *ids = s->f + 3 * i;
+    for (int k = 0; k < 3; k++)
+        for (int c = 0; c < 3; c++) corners[3 * k + c] = s->v[3 * ids[k] + c];
+    double e1[3], e2[3];
+    sub3(corners + 3, corners, e1);
+    sub3(corners + 6, corners, e2);
+    cross3(e1, e2, normal);
+    face_box(corners, corners + 3, corners + 6, box, box + 3);
+}
+
+/* pair_intersects of faces a, b (the lower first, as `faces`), when both are valid, one is marked and their closed
+ * boxes overlap: flags both when it accepts. */
+static void test_pair(const CheckFaces *s, int64_t a, int64_t b) {
+    if (a > b) {
+        int64_t t = a;
+        a = b;
+        b = t;
+    }
+    if (a == b || !s->valid[a] || !s->valid[b] || !(s->only[a] || s->only[b]) || (s->flags[a] && s->flags[b]))
+        return;
+    double ta[9], tb[9], na[3], nb[3], ba[6], bb[6];
+    face_geometry(s, a, ta, na, ba);
+    face_geometry(s, b, tb, nb, bb);
+    if (!(ba[0] <= bb[3] && bb[0] <= ba[3] && ba[1] <= bb[4] && bb[1] <= ba[4] && ba[2] <= bb[5] && bb[2] <= ba[5]))
+        return;
+    if (pair_intersects(ta, tb, s->f + 3 * a, s->f + 3 * b, na, nb, ba, bb, sqrt(dot3(na, na)), sqrt(dot3(nb, nb))))
+        s->flags[a] = s->flags[b] = 1;
+}
+
+/* 1 when the reference's grid is feasible at its first cell size (`faces` then answers with the pair set), 0 when
+ * that is not known here, -1 out of memory. n valid faces, ext their extents in face order, origin and top the
+ * corners of their boxes (the proof is `marked`'s). */
+static int first_grid_feasible(const CheckFaces *s, int64_t nf, int64_t n, const double *ext, const double *origin,
+                               const double *top) {
+    double *sorted = (double *)malloc(sizeof(double) * (size_t)n);
+    if (!sorted) return -1;
+    double cell = first_cell(ext, sorted, n);
+    free(sorted);
+    int64_t dims[3];
+    for (int k = 0; k < 3; k++) {
+        double q = (top[k] - origin[k]) / cell;
+        if (!(q < 1e9)) return 0;
+        dims[k] = (int64_t)q + 1;
+    }
+    int cb = bit_length((uint64_t)dims[0]) + bit_length((uint64_t)dims[1]) + bit_length((uint64_t)dims[2]);
+    if (bit_length((uint64_t)n) + cb > 63) return 0;
+    if ((double)dims[0] * (double)dims[1] * (double)dims[2] > (double)MAX_DENSE_CELLS) return 0;
+    uint16_t *counts = (uint16_t *)calloc((size_t)(dims[0] * dims[1] * dims[2]), sizeof(uint16_t));
+    if (!counts) return -1;
+    double limit = 64.0 * (double)n + 1000000.0, total_cells = 0;
+    long long pairs = 0;
+    int ok = 1;
+    for (int64_t i = 0; i < nf && ok; i++) {
+        if (!s->valid[i]) continue;
+        double corners[9], normal[3], b[6];
+        face_geometry(s, i, corners, normal, b);
+        int64_t c[6];
+        double span = 1;
+        for (int k = 0; k < 3; k++) {
+            c[k] = (int64_t)((b[k] - origin[k]) / cell);
+            c[3 + k] = (int64_t)((b[3 + k] - origin[k]) / cell);
+            span *= (double)c[3 + k] - (double)c[k] + 1;
+        }
+        total_cells += span;
+        if (total_cells > limit) {
+            ok = 0;
+            break;
+        }
+        for (int64_t x = c[0]; x <= c[3] && ok; x++)
+            for (int64_t y = c[1]; y <= c[4] && ok; y++)
+                for (int64_t z = c[2]; z <= c[5]; z++) {
+                    uint16_t *cnt = counts + (x * dims[1] + y) * dims[2] + z;
+                    if (*cnt == UINT16_MAX) {
+                        ok = 0;
+                        break;
+                    }
+                    pairs += *cnt;
+                    (*cnt)++;
+                }
+        if (pairs > MAX_CANDIDATE_PAIRS) ok = 0;
+    }
+    free(counts);
+    return ok;
+}
+
+/* One vertex's patch: 1 when it is shown free of crossings (see above), 0 when its pairs must be tested. pf: the
+ * k parents around u; group: children per parent. */
+static int patch_certified(const CheckFaces *s, const int64_t *parents, int group, int64_t u, const int64_t *pf,
+                           int64_t k) {
+    if (k < 3 || k > MAX_STAR) return 0;
+    int64_t a[MAX_STAR], b[MAX_STAR], mid[MAX_STAR], spoke_a[MAX_STAR], spoke_b[MAX_STAR], order[MAX_STAR];
+    uint8_t used[MAX_STAR];
+    for (int64_t t = 0; t < k; t++) {
+        const int64_t *p = parents + 3 * pf[t];
+        if (p[0] == p[1] || p[1] == p[2] || p[2] == p[0]) return 0;
+        int at = p[0] == u ? 0 : p[1] == u ? 1 : 2;
+        a[t] = p[(at + 1) % 3];
+        b[t] = p[(at + 2) % 3];
+        if (group == 4) { /* the middle child (m01, m12, m20): edge (x_e, x_e+1) has its midpoint at e */
+            const int64_t *m = s->f + 3 * (4 * pf[t] + 3);
+            mid[t] = m[(at + 1) % 3];
+            spoke_a[t] = m[at];           /* midpoint of (u, a) */
+            spoke_b[t] = m[(at + 2) % 3]; /* midpoint of (b, u) */
+        }
+        used[t] = 0;
+    }
+    /* the parents in fan order: each starts where the last ended, one cycle through all */
+    order[0] = 0;
+    used[0] = 1;
+    for (int64_t t = 1; t < k; t++) {
+        int64_t prev = order[t - 1], next = -1;
+        for (int64_t c = 0; c < k; c++)
+            if (!used[c] && a[c] == b[prev]) {
+                if (next >= 0) return 0; /* two candidates: not a manifold fan */
+                next = c;
+            }
+        if (next < 0) return 0;
+        order[t] = next;
+        used[next] = 1;
+    }
+    if (b[order[k - 1]] != a[order[0]]) return 0;
+    /* a disk: distinct boundary vertices, spoke midpoints shared by neighbouring parents and distinct */
+    for (int64_t t = 0; t < k; t++)
+        for (int64_t c = t + 1; c < k; c++) {
+            if (a[t] == a[c]) return 0;
+            if (group == 4 && (mid[t] == mid[c] || spoke_a[t] == spoke_a[c] || mid[t] == a[c] || mid[c] == a[t]))
+                return 0;
+        }
+    if (group == 4)
+        for (int64_t t = 0; t < k; t++) {
+            int64_t x = order[t], y = order[(t + 1) % k];
+            if (spoke_b[x] != spoke_a[y]) return 0;
+            if (spoke_a[x] == u || mid[x] == u) return 0;
+            for (int64_t c = 0; c < k; c++)
+                if (spoke_a[x] == a[c] || spoke_a[x] == mid[c]) return 0;
+        }
+    /* N: the sum of the children's normals */
+    double nrm[3] = {0, 0, 0}, normals[4 * MAX_STAR][3], longest[4 * MAX_STAR];
+    for (int64_t t = 0; t < k; t++)
+        for (int g = 0; g < group; g++) {
+            const int64_t *ids = s->f + 3 * (group * pf[t] + g);
+            const double *p0 = s->v + 3 * ids[0], *p1 = s->v + 3 * ids[1], *p2 = s->v + 3 * ids[2];
+            double e1[3], e2[3], e3[3], *n = normals[group * t + g];
+            sub3(p1, p0, e1);
+            sub3(p2, p0, e2);
+            sub3(p2, p1, e3);
+            cross3(e1, e2, n);
+            double l1 = dot3(e1, e1), l2 = dot3(e2, e2), l3 = dot3(e3, e3);
+            longest[group * t + g] = l1 > l2 ? (l1 > l3 ? l1 : l3) : (l2 > l3 ? l2 : l3);
+            nrm[0] += n[0];
+            nrm[1] += n[1];
+            nrm[2] += n[2];
+        }
+    double len = sqrt(dot3(nrm, nrm));
+    if (!(len > 0)) return 0;
+    for (int c = 0; c < 3; c++) nrm[c] /= len;
+    /* every child keeps its orientation with area to spare: (projected double area) >= margin (longest edge)^2 */
+    for (int64_t t = 0; t < k; t++)
+        for (int g = 0; g < group; g++) {
+            if (!s->valid[group * pf[t] + g] || !(dot3(normals[group * t + g], nrm) >= STAR_MARGIN * longest[group * t + g]))
+                return 0;
+        }
+    /* the boundary, projected on a basis (e1, e2) of the plane normal to N, turns around u once, each step by a
+     * positive angle with margin */
+    double e1[3], e2[3], axis[3] = {0, 0, 0};
+    int small = fabs(nrm[0]) <= fabs(nrm[1]) ? (fabs(nrm[0]) <= fabs(nrm[2]) ? 0 : 2) : (fabs(nrm[1]) <= fabs(nrm[2]) ? 1 : 2);
+    axis[small] = 1;
+    cross3(nrm, axis, e1);
+    double l1 = sqrt(dot3(e1, e1));
+    for (int c = 0; c < 3; c++) e1[c] /= l1;
+    cross3(nrm, e1, e2);
+    const double *pu = s->v + 3 * u;
+    int64_t nb = group == 4 ? 2 * k : k;
+    double q[2 * MAX_STAR][2];
+    for (int64_t t = 0; t < k; t++) {
+        int64_t x = order[t];
+        int64_t ids[2] = {a[x], group == 4 ? mid[x] : -1};
+        for (int j = 0; j < (group == 4 ? 2 : 1); j++) {
+            double d[3];
+            sub3(s->v + 3 * ids[j], pu, d);
+            double *qq = q[(group == 4 ? 2 : 1) * t + j];
+            qq[0] = dot3(d, e1);
+            qq[1] = dot3(d, e2);
+        }
+    }
+    int winding = 0;
+    for (int64_t i = 0; i < nb; i++) {
+        const double *p = q[i], *r = q[(i + 1) % nb];
+        double cr = p[0] * r[1] - p[1] * r[0];
+        double lp = p[0] * p[0] + p[1] * p[1], lr = r[0] * r[0] + r[1] * r[1];
+        if (!(cr > 0 && cr * cr >= STAR_MARGIN * STAR_MARGIN * lp * lr)) return 0; /* cr > 0: lp, lr > 0 */
+        winding += p[1] < 0 && r[1] >= 0;
+    }
+    return winding == 1;
+}
+
+/* A parent as the grid's pair loop reads it: box (lo xyz, hi xyz), lower cell, vertex indices, marked child. */
+typedef struct {
+    double box[6];
+    int64_t c0[3], ids[3], id;
+    int interest;
+} CellParent;
+
+static PyObject *stars_flags(PyObject *self, PyObject *args) {
+    PyObject *ov, *of, *oo, *om;
+    int group;
+    if (!PyArg_ParseTuple(args, "OOOOi", &ov, &of, &oo, &om, &group)) return NULL;
+    if (group != 1 && group != 4) {
+        PyErr_SetString(PyExc_ValueError, "children: 1 or 4");
+        return NULL;
+    }
+    PyObject *four = PyTuple_Pack(4, ov, of, oo, om);
+    if (!four) return NULL;
+    Py_buffer bv, bf, bo, bm;
+    int64_t nf;
+    int got = get_face_buffers(four, &bv, &bf, &bo, &bm, &nf);
+    Py_DECREF(four);
+    if (got < 0) return NULL;
+    CheckFaces s;
+    s.v = (const double *)bv.buf;
+    s.f = (const int64_t *)bf.buf;
+    s.only = (const uint8_t *)bm.buf;
+    s.flags = (uint8_t *)bo.buf;
+    int status = 2;
+    uint8_t *valid = NULL, *interest = NULL;
+    double *ext = NULL, *gbox = NULL, *gext = NULL;
+    int64_t *parents = NULL, *vstart = NULL, *vfaces = NULL, *gc = NULL, *bucket = NULL;
+    int32_t *cstart = NULL;
+    CellParent *local = NULL;
+    Py_BEGIN_ALLOW_THREADS;
+    memset(s.flags, 0, (size_t)nf);
+    size_t cap = (size_t)(nf > 0 ? nf : 1);
+    valid = (uint8_t *)malloc(cap);
+    ext = (double *)malloc(sizeof(double) * cap);
+    if (!valid || !ext) {
+        status = -1;
+        goto done;
+    }
+    s.valid = valid;
+    int64_t n = 0, nv = (int64_t)(bv.len / 24);
+    double origin[3] = {0, 0, 0}, top[3] = {0, 0, 0};
+    for (int64_t i = 0; i < nf; i++) { /* as `faces`: valid faces, normals, boxes, extents */
+        const double *p0 = s.v + 3 * s.f[3 * i], *p1 = s.v + 3 * s.f[3 * i + 1], *p2 = s.v + 3 * s.f[3 * i + 2];
+        double e1[3], e2[3], c[3], b[6];
+        sub3(p1, p0, e1);
+        sub3(p2, p0, e2);
+        cross3(e1, e2, c);
+        valid[i] = dot3(c, c) > 0;
+        if (!valid[i]) continue;
+        double x = face_box(p0, p1, p2, b, b + 3);
+        for (int k = 0; k < 3; k++) {
+            if (n == 0 || b[k] < origin[k]) origin[k] = b[k];
+            if (n == 0 || b[3 + k] > top[k]) top[k] = b[3 + k];
+        }
+        ext[n++] = x;
+    }
+    if (nf < 2 || n < 2) { /* `faces` flags nothing */
+        status = 0;
+        goto done;
+    }
+    if (nf % group) goto done;
+    int feasible = first_grid_feasible(&s, nf, n, ext, origin, top);
+    if (feasible < 0) status = -1;
+    if (feasible <= 0) goto done;
+    /* the parents, and the runs checked to be Loop children */
+    int64_t np = nf / group;
+    parents = (int64_t *)malloc(sizeof(int64_t) * 3 * (size_t)np);
+    if (!parents) {
+        status = -1;
+        goto done;
+    }
+    for (int64_t j = 0; j < np; j++) {
+        const int64_t *c = s.f + 3 * group * j;
+        int64_t *p = parents + 3 * j;
+        if (group == 1) {
+            p[0] = c[0], p[1] = c[1], p[2] = c[2];
+            continue;
+        }
+        int64_t m01 = c[1], m20 = c[2], m12 = c[5];
+        p[0] = c[0], p[1] = c[4], p[2] = c[8];
+        if (c[3] != m01 || c[6] != m20 || c[7] != m12 || c[9] != m01 || c[10] != m12 || c[11] != m20) goto done;
+    }
+    /* the parents around each vertex */
+    vstart = (int64_t *)calloc((size_t)nv + 1, sizeof(int64_t));
+    vfaces = (int64_t *)malloc(sizeof(int64_t) * 3 * (size_t)np);
+    if (!vstart || !vfaces) {
+        status = -1;
+        goto done;
+    }
+    for (int64_t j = 0; j < 3 * np; j++) vstart[parents[j] + 1]++;
+    for (int64_t u = 0; u < nv; u++) vstart[u + 1] += vstart[u];
+    for (int64_t j = 0; j < np; j++)
+        for (int c = 0; c < 3; c++) vfaces[vstart[parents[3 * j + c]]++] = j;
+    for (int64_t u = nv; u > 0; u--) vstart[u] = vstart[u - 1];
+    vstart[0] = 0;
+    /* patches */
+    for (int64_t u = 0; u < nv; u++) {
+        const int64_t *pf = vfaces + vstart[u];
+        int64_t k = vstart[u + 1] - vstart[u], any = 0;
+        for (int64_t t = 0; t < k && !any; t++)
+            for (int g = 0; g < group; g++) any |= s.only[group * pf[t] + g];
+        if (!any || patch_certified(&s, parents, group, u, pf, k)) continue;
+        for (int64_t t = 0; t < k; t++)
+            for (int g = 0; g < group; g++)
+                for (int64_t w = t; w < k; w++)
+                    for (int h = (w == t ? g + 1 : 0); h < group; h++)
+                        test_pair(&s, group * pf[t] + g, group * pf[w] + h);
+    }
+    /* parents sharing no vertex: a grid over their boxes */
+    gbox = (double *)malloc(sizeof(double) * 6 * (size_t)np);
+    gext = (double *)malloc(sizeof(double) * (size_t)np);
+    interest = (uint8_t *)malloc((size_t)np);
+    gc = (int64_t *)malloc(sizeof(int64_t) * 6 * (size_t)np);
+    if (!gbox || !gext || !interest || !gc) {
+        status = -1;
+        goto done;
+    }
+    int64_t ng = 0;
+    double go[3] = {0, 0, 0}, gt[3] = {0, 0, 0};
+    for (int64_t j = 0; j < np; j++) {
+        double *b = gbox + 6 * j;
+        int have = 0;
+        interest[j] = 0;
+        for (int g = 0; g < group; g++) {
+            int64_t face = group * j + g;
+            if (!valid[face]) continue;
+            double corners[9], normal[3], fb[6];
+            face_geometry(&s, face, corners, normal, fb);
+            for (int k = 0; k < 3; k++) {
+                if (!have || fb[k] < b[k]) b[k] = fb[k];
+                if (!have || fb[3 + k] > b[3 + k]) b[3 + k] = fb[3 + k];
+            }
+            have = 1;
+            interest[j] |= s.only[face];
+        }
+        if (!have) {
+            interest[j] = 2; /* no valid child: never a candidate */
+            continue;
+        }
+        double x = 0;
+        for (int k = 0; k < 3; k++) {
+            if (b[3 + k] - b[k] > x) x = b[3 + k] - b[k];
+            if (ng == 0 || b[k] < go[k]) go[k] = b[k];
+            if (ng == 0 || b[3 + k] > gt[k]) gt[k] = b[3 + k];
+        }
+        gext[ng++] = x;
+    }
+    if (ng < 2) {
+        status = 0;
+        goto done;
+    }
+    double cell = 2.0 * kth_smallest(gext, ng, ng / 2);
+    if (!(cell > 0)) cell = 1.0;
+    int64_t dims[3], ncells = 0, entries = 0;
+    for (int round = 0;; round++) {
+        if (round == 64) goto done;
+        double total = 1;
+        for (int k = 0; k < 3; k++) {
+            double q = (gt[k] - go[k]) / cell;
+            dims[k] = q < 1e9 ? (int64_t)q + 1 : (int64_t)1e9;
+            total *= (double)dims[k];
+        }
+        double spans = 0;
+        if (total <= (double)MAX_DENSE_CELLS)
+            for (int64_t j = 0; j < np; j++) {
+                if (interest[j] == 2) continue;
+                const double *b = gbox + 6 * j;
+                double span = 1;
+                for (int k = 0; k < 3; k++)
+                    span *= (double)((int64_t)((b[3 + k] - go[k]) / cell) - (int64_t)((b[k] - go[k]) / cell) + 1);
+                spans += span;
+            }
+        if (total <= (double)MAX_DENSE_CELLS && spans <= 64.0 * (double)ng + 1000000.0) {
+            ncells = (int64_t)total;
+            entries = (int64_t)spans;
+            break;
+        }
+        cell *= 2.0;
+    }
+    cstart = (int32_t *)calloc((size_t)ncells + 1, sizeof(int32_t));
+    bucket = (int64_t *)malloc(sizeof(int64_t) * (size_t)(entries > 0 ? entries : 1));
+    if (!cstart || !bucket) {
+        status = -1;
+        goto done;
+    }
+    for (int64_t j = 0; j < np; j++) {
+        if (interest[j] == 2) continue;
+        const double *b = gbox + 6 * j;
+        int64_t *c = gc + 6 * j;
+        for (int k = 0; k < 3; k++) {
+            c[k] = (int64_t)((b[k] - go[k]) / cell);
+            c[3 + k] = (int64_t)((b[3 + k] - go[k]) / cell);
+        }
+        for (int64_t x = c[0]; x <= c[3]; x++)
+            for (int64_t y = c[1]; y <= c[4]; y++)
+                for (int64_t z = c[2]; z <= c[5]; z++) cstart[(x * dims[1] + y) * dims[2] + z + 1]++;
+    }
+    long long in_cells = 0;
+    for (int64_t i = 0; i < ncells; i++) {
+        long long size = cstart[i + 1];
+        in_cells += size * (size - 1) / 2;
+        cstart[i + 1] += cstart[i];
+    }
+    if (in_cells > MAX_PARENT_PAIRS) goto done;
+    for (int64_t j = 0; j < np; j++) {
+        if (interest[j] == 2) continue;
+        const int64_t *c = gc + 6 * j;
+        for (int64_t x = c[0]; x <= c[3]; x++)
+            for (int64_t y = c[1]; y <= c[4]; y++)
+                for (int64_t z = c[2]; z <= c[5]; z++) bucket[cstart[(x * dims[1] + y) * dims[2] + z]++] = j;
+    }
+    for (int64_t i = ncells; i > 0; i--) cstart[i] = cstart[i - 1];
+    cstart[0] = 0;
+    /* per cell, its parents gathered contiguously (the pair loop is memory bound) */
+    int64_t most = 0;
+    for (int64_t i = 0; i < ncells; i++)
+        if (cstart[i + 1] - cstart[i] > most) most = cstart[i + 1] - cstart[i];
+    local = (CellParent *)malloc(sizeof(CellParent) * (size_t)(most > 0 ? most : 1));
+    if (!local) {
+        status = -1;
+        goto done;
+    }
+    for (int64_t x = 0; x < dims[0]; x++)
+        for (int64_t y = 0; y < dims[1]; y++)
+            for (int64_t z = 0; z < dims[2]; z++) {
+                int64_t cid = (x * dims[1] + y) * dims[2] + z, s0 = cstart[cid], m = cstart[cid + 1] - s0;
+                if (m < 2) continue;
+                for (int64_t i = 0; i < m; i++) {
+                    int64_t p = bucket[s0 + i];
+                    CellParent *l = local + i;
+                    l->id = p;
+                    l->interest = interest[p];
+                    for (int k = 0; k < 3; k++) {
+                        l->box[k] = gbox[6 * p + k];
+                        l->box[3 + k] = gbox[6 * p + 3 + k];
+                        l->c0[k] = gc[6 * p + k];
+                        l->ids[k] = parents[3 * p + k];
+                    }
+                }
+                for (int64_t i = 0; i < m; i++) {
+                    const CellParent *lp = local + i;
+                    for (int64_t j = i + 1; j < m; j++) {
+                        const CellParent *lr = local + j;
+                        const double *bp = lp->box, *br = lr->box;
+                        /* branch-free: the pair once (in the cell of its larger lower corner), boxes overlap */
+                        int keep = ((lp->c0[0] > lr->c0[0] ? lp->c0[0] : lr->c0[0]) == x) &
+                                   ((lp->c0[1] > lr->c0[1] ? lp->c0[1] : lr->c0[1]) == y) &
+                                   ((lp->c0[2] > lr->c0[2] ? lp->c0[2] : lr->c0[2]) == z) & (bp[0] <= br[3]) &
+                                   (br[0] <= bp[3]) & (bp[1] <= br[4]) & (br[1] <= bp[4]) & (bp[2] <= br[5]) &
+                                   (br[2] <= bp[5]) & ((lp->interest | lr->interest) != 0);
+                        if (!keep) continue;
+                        const int64_t *vp = lp->ids, *vr = lr->ids;
+                        int touch = 0;
+                        for (int c = 0; c < 3; c++) touch |= (vp[c] == vr[0]) | (vp[c] == vr[1]) | (vp[c] == vr[2]);
+                        if (touch) continue; /* a patch's pair */
+                        for (int g = 0; g < group; g++)
+                            for (int h = 0; h < group; h++) test_pair(&s, group * lp->id + g, group * lr->id + h);
+                    }
+                }
+            }
+    status = 0;
+done:
+    if (status == 2) memset(s.flags, 0, (size_t)nf);
+    free(valid);
+    free(ext);
+    free(parents);
+    free(vstart);
+    free(vfaces);
+    free(gbox);
+    free(gext);
+    free(interest);
+    free(gc);
+    free(cstart);
+    free(bucket);
+    free(local);
+    Py_END_ALLOW_THREADS;
+    PyBuffer_Release(&bv);
+    PyBuffer_Release(&bf);
+    PyBuffer_Release(&bo);
+    PyBuffer_Release(&bm);
+    if (status < 0) return PyErr_NoMemory();
+    return PyLong_FromLong(status);
+}
+
 static PyMethodDef methods[] = {
+    {"stars", stars_flags, METH_VARARGS, "Flags of a first check through vertex patches (see above)."},
     {"faces", faces_flags, METH_VARARGS, "Flags of self-intersecting faces (geometry.intersections)."},
     {"marked", marked_flags, METH_VARARGS, "Flags of a later check whose changed faces are marked (see above)."},
     {NULL, NULL, 0, NULL},

@@ -14,7 +14,9 @@ A compiled fast path (geometry/_intersect_native.c, built by setup.py when a C c
 grid decisions and evaluates the same predicate with every binary64 operation in the same order (the arithmetic
 below is written out for that reason: no einsum, no np.cross, no norm), so both flag the same faces
 (tests/test_intersections.py); this module stays the reference and the fallback (`NATIVE`, environment
-TETWEAVE_NATIVE=0).
+TETWEAVE_NATIVE=0). Two shorter compiled ways give the same flags where they can prove it and decline otherwise:
+`marked` for the decoder's later checks (few faces marked), `stars` for its first check of a filtered surface
+(pairs of neighbouring faces shown free of crossings patch by patch, the others found through their parents).
 """
 
 from __future__ import annotations
@@ -219,7 +221,9 @@ def _pairs_intersect(t1: np.ndarray, t2: np.ndarray, shared_one: np.ndarray, opp
     return hit
 
 
-def self_intersecting_faces(vertices: np.ndarray, faces: np.ndarray, only: np.ndarray | None = None) -> np.ndarray:
+def self_intersecting_faces(
+    vertices: np.ndarray, faces: np.ndarray, only: np.ndarray | None = None, children: int = 1
+) -> np.ndarray:
     """Boolean mask (F,) of faces that properly intersect another face (see the module docstring).
 
     Degenerate (zero-area) faces are neither tested nor flagged. only: (F,) bool, test only the pairs with at
@@ -229,6 +233,12 @@ def self_intersecting_faces(vertices: np.ndarray, faces: np.ndarray, only: np.nd
     whole mesh's grid feasible at its first cell size (exact entry and pair counts) and then test only the marked
     faces' pairs, found through a hash grid of their cells -- the same answer (the proof is in the C file), or no
     answer, and then the full check runs.
+
+    children: 4 when the faces come in runs of four children of one face (a Loop level's output,
+    geometry.subdivision.loop_level), else 1. Only a hint for speed: with many faces marked the compiled path first
+    tries `_intersect_native.stars`, which tests the pairs of faces whose parents share no vertex and shows the
+    others free of crossings patch by patch around each vertex where it can (the proof is in the C file) -- the
+    same answer, or no answer (the runs are not Loop children, a grid would be too large), and then `faces` runs.
     """
     v = np.ascontiguousarray(vertices, dtype=np.float64).reshape(-1, 3)
     f = np.ascontiguousarray(faces, dtype=np.int64).reshape(-1, 3)
@@ -243,6 +253,8 @@ def self_intersecting_faces(vertices: np.ndarray, faces: np.ndarray, only: np.nd
         if only is not None and MARKED_SHARE * int(mark.sum()) <= len(f):
             if _intersect_native.marked(v, f, flags, only_u8) == 0:
                 return flags.view(np.bool_)
+        elif _intersect_native.stars(v, f, flags, only_u8, 4 if children == 4 else 1) == 0:
+            return flags.view(np.bool_)
         if _intersect_native.faces(v, f, flags, only_u8):
             raise RuntimeError("self-intersection test: too many candidate face pairs")
         return flags.view(np.bool_)

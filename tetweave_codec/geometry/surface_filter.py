@@ -79,17 +79,21 @@ def filter_surface(
     reference, f = v0, f0
     if subdivision > 0:
         v, reference, f = loop_and_midpoint(v, v0, f0, subdivision, neighbours=edges, creases=loop_creases)
-    out, restored, gave_up = restore_crossings(v, reference, f)
+    out, restored, gave_up = restore_crossings(v, reference, f, children=4 if subdivision > 0 else 1)
     if gave_up:
         return FilteredSurface(v0, f0, len(v0), True)
     return FilteredSurface(out, f, restored, False)
 
 
-def restore_crossings(moved: np.ndarray, reference: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, int, bool]:
+def restore_crossings(
+    moved: np.ndarray, reference: np.ndarray, faces: np.ndarray, children: int = 1
+) -> tuple[np.ndarray, int, bool]:
     """moved (V,3) with the vertices of faces that cross another face put back to `reference` (V,3), repeated
     until no face crosses (at most MAX_CHECKS checks). Returns (vertices, number of vertices restored, gave_up):
     gave_up when the last check still finds crossing faces, when crossing faces are all at their reference
-    already, or when the check cannot bound its work; the vertices are then `reference`."""
+    already, or when the check cannot bound its work; the vertices are then `reference`. children: 4 when the
+    faces are a Loop level's output (runs of four children), a hint for the check's speed
+    (`intersections.self_intersecting_faces`)."""
     v = np.array(moved, dtype=np.float64)
     faces = np.asarray(faces, dtype=np.int64)
     restored = np.zeros(len(v), dtype=bool)
@@ -99,7 +103,7 @@ def restore_crossings(moved: np.ndarray, reference: np.ndarray, faces: np.ndarra
             # later checks test only pairs with a face that just changed or crossed at the last check: a pair of
             # two other faces was tested at these same positions by the last check and did not cross (had it
             # crossed, both faces would be flagged), so the answer is that of a check of every pair
-            bad = self_intersecting_faces(v, faces, only=interest)
+            bad = self_intersecting_faces(v, faces, only=interest, children=children)
             if not bad.any():
                 return v, int(restored.sum()), False
             if check == MAX_CHECKS - 1:
