@@ -223,3 +223,21 @@ def test_the_patch_check_declines_runs_that_are_not_loop_children():
     assert status == 2 and not fast.any() and ref.any()
     np.testing.assert_array_equal(self_intersecting_faces(v, f, children=4), ref.astype(bool))
     assert stars_and_faces(v, f, only, 1)[0] == 0  # as plain faces: decided
+
+
+@needs_filter
+@pytest.mark.parametrize("seed", [0, 1])
+def test_crease_edges_are_the_references(seed, monkeypatch):
+    """The compiled crease test of a closed mesh (smooth, and jittered: many creases), and the reference's answer
+    for an open mesh (declined by the compiled path)."""
+    v, f = marching_surface(seed)
+    rng = np.random.default_rng(seed)
+    meshes = [(v, f), (jitter(v, f, rng), f), (v, f[:-7])]
+    fast = []
+    for mv, mf in meshes:
+        e = smoothing.mesh_edges(mf, len(mv), closed=len(mf) == len(f))
+        fast.append((e, smoothing.crease_edges(mv, mf, e)))
+    assert 0 < fast[0][1].sum() < fast[1][1].sum()
+    monkeypatch.setattr(smoothing, "NATIVE", False)
+    for (mv, mf), (e, sharp) in zip(meshes, fast, strict=True):
+        np.testing.assert_array_equal(sharp, smoothing.crease_edges(mv, mf, e))

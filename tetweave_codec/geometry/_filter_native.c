@@ -13,9 +13,11 @@
  *     third corners of the faces of (a, b) and (b, a)); 1 when the faces are not a closed, consistently oriented
  *     2-manifold (a half-edge twice, one without its twin or not in `edges`): nothing written, the caller runs
  *     the reference.
+ * creases(...): smoothing.crease_edges of a closed mesh, below.
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
+#include <math.h>
 #include <stdint.h>
 #include <stdlib.h>
 #include <string.h>
@@ -247,7 +249,100 @@ bad:
     return NULL;
 }
 
+
+static inline double dot3(const double *u, const double *w) { return (u[0] * w[0] + u[1] * w[1]) + u[2] * w[2]; }
+
+/* creases(vertices (V,3), faces (F,3), edges (3F,2) = smoothing.mesh_edges(faces, V, closed=True), cos, sharp (3F,)
+ * uint8 out) -> 0: sharp = smoothing.crease_edges(vertices, faces, edges) > 0 with CREASE_COS = cos (the face of
+ * each row and of its twin, their normals (v1 - v0) x (v2 - v0) and the test in the reference's operation order);
+ * 1 when the faces are not a closed, consistently oriented 2-manifold listing every row once (nothing decided:
+ * the caller runs the reference, whose rule for such meshes this does not repeat). */
+static PyObject *creases(PyObject *self, PyObject *args) {
+    PyObject *ov, *of, *oe, *os;
+    double cosine;
+    if (!PyArg_ParseTuple(args, "OOOdO", &ov, &of, &oe, &cosine, &os)) return NULL;
+    Buf b[4];
+    memset(b, 0, sizeof b);
+    if (take(ov, &b[0], 8, -1, 0, "vertices") < 0 || b[0].view.len % 24) goto bad;
+    int64_t nv = b[0].view.len / 24;
+    if (take(of, &b[1], 8, -1, 0, "faces") < 0 || b[1].view.len % 24) goto bad;
+    int64_t nf = b[1].view.len / 24, nh = 3 * nf;
+    if (take(oe, &b[2], 8, 2 * nh, 0, "edges") < 0) goto bad;
+    if (take(os, &b[3], 1, nh, 1, "sharp") < 0) goto bad;
+    const double *v = (const double *)b[0].view.buf;
+    const int64_t *f = (const int64_t *)b[1].view.buf, *e = (const int64_t *)b[2].view.buf;
+    uint8_t *sharp = (uint8_t *)b[3].view.buf;
+    for (int64_t i = 0; i < 2 * nh; i++)
+        if (e[i] < 0 || e[i] >= nv) {
+            PyErr_SetString(PyExc_ValueError, "edges: index out of range");
+            goto bad;
+        }
+    for (int64_t i = 0; i < 3 * nf; i++)
+        if (f[i] < 0 || f[i] >= nv) {
+            PyErr_SetString(PyExc_ValueError, "faces: index out of range");
+            goto bad;
+        }
+    int status = 0;
+    Py_BEGIN_ALLOW_THREADS;
+    int64_t *start = (int64_t *)calloc((size_t)nv + 1, sizeof(int64_t));
+    int64_t *side = (int64_t *)malloc(sizeof(int64_t) * (size_t)(nh > 0 ? nh : 1)); /* the face of each row */
+    double *normal = (double *)malloc(sizeof(double) * 3 * (size_t)(nf > 0 ? nf : 1));
+    if (!start || !side || !normal) {
+        status = -1;
+        goto done;
+    }
+    for (int64_t i = 0; i < nh; i++) {
+        side[i] = -1;
+        start[e[2 * i] + 1]++;
+        if (i > 0 && (e[2 * i] < e[2 * i - 2] || (e[2 * i] == e[2 * i - 2] && e[2 * i + 1] <= e[2 * i - 1]))) {
+            status = 1; /* not sorted, or a row twice */
+            goto done;
+        }
+    }
+    for (int64_t u = 0; u < nv; u++) start[u + 1] += start[u];
+    for (int64_t i = 0; i < nf; i++) {
+        const int64_t *fc = f + 3 * i;
+        for (int k = 0; k < 3; k++) {
+            int64_t row = find_half(e, start, fc[k], fc[(k + 1) % 3]);
+            if (row < 0 || side[row] >= 0) {
+                status = 1;
+                goto done;
+            }
+            side[row] = i;
+        }
+        const double *p0 = v + 3 * fc[0], *p1 = v + 3 * fc[1], *p2 = v + 3 * fc[2];
+        double u[3] = {p1[0] - p0[0], p1[1] - p0[1], p1[2] - p0[2]}, w[3] = {p2[0] - p0[0], p2[1] - p0[1], p2[2] - p0[2]};
+        double *n = normal + 3 * i;
+        n[0] = u[1] * w[2] - u[2] * w[1];
+        n[1] = u[2] * w[0] - u[0] * w[2];
+        n[2] = u[0] * w[1] - u[1] * w[0];
+    }
+    for (int64_t i = 0; i < nh; i++) {
+        int64_t twin = find_half(e, start, e[2 * i + 1], e[2 * i]);
+        if (twin < 0) {
+            status = 1;
+            goto done;
+        }
+        const double *n1 = normal + 3 * side[i], *n2 = normal + 3 * side[twin];
+        double bound = cosine * sqrt(dot3(n1, n1)) * sqrt(dot3(n2, n2));
+        sharp[i] = dot3(n1, n2) < bound;
+    }
+done:
+    free(start);
+    free(side);
+    free(normal);
+    Py_END_ALLOW_THREADS;
+    release(b, 4);
+    if (status < 0) return PyErr_NoMemory();
+    return PyLong_FromLong(status);
+bad:
+    if (!PyErr_Occurred()) PyErr_SetString(PyExc_ValueError, "creases: wrong array shapes");
+    release(b, 4);
+    return NULL;
+}
+
 static PyMethodDef methods[] = {
+    {"creases", creases, METH_VARARGS, "Crease edges of a closed mesh (smoothing.crease_edges)."},
     {"taubin", taubin, METH_VARARGS, "Taubin steps in place (smoothing.taubin's numpy arithmetic)."},
     {"loop", loop, METH_VARARGS, "One Loop level and one midpoint level of a closed mesh (subdivision.py)."},
     {NULL, NULL, 0, NULL},

@@ -38,7 +38,7 @@ try:  # the compiled fast path of the numpy steps below (optional; bit-identical
     from tetweave_codec.geometry import _filter_native
 except ImportError:  # not built: the numpy code
     _filter_native = None
-# geometry/_filter_native.c for `taubin` (numpy arrays); TETWEAVE_NATIVE=0: the numpy code
+# geometry/_filter_native.c for `taubin` and `crease_edges` (numpy arrays); TETWEAVE_NATIVE=0: the numpy code
 NATIVE = _filter_native is not None and os.environ.get("TETWEAVE_NATIVE", "1") != "0"
 
 TAUBIN_LAMBDA = 0.5
@@ -113,6 +113,11 @@ def crease_edges(
     e = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
     if not len(e) or not len(f):
         return np.zeros(len(e), dtype=bool)
+    if NATIVE and sides is None and len(e) == 3 * len(f):  # a closed mesh's rows: the compiled path, same bits
+        sharp = np.zeros(len(e), dtype=np.uint8)
+        v64, f64, e64 = (np.ascontiguousarray(x) for x in (v, f, e))
+        if _filter_native.creases(v64, f64, e64, CREASE_COS, sharp) == 0:
+            return sharp.view(bool)
     sides = edge_faces(f, e, len(v)) if sides is None else sides
     # the spec's arithmetic (formats/README.md, "Crossing faces"): the crossing check's own row helpers
     normal = row_cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
