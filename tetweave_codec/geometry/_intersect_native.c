@@ -838,17 +838,20 @@ typedef struct {
     uint8_t *flags;
 } CheckFaces;
 
-/* Face i's corners (9 coordinates), normal (x1 - x0) x (x2 - x0) and closed box (lo xyz, hi xyz), as `faces`
- * computes them. */
-static inline void face_geometry(const CheckFaces *s, int64_t i, double *corners, double *normal, double *box) {
+/* Face i's corners (9 coordinates) and closed box (lo xyz, hi xyz), as `faces` computes them. */
+static inline void face_corners_box(const CheckFaces *s, int64_t i, double *corners, double *box) {
     const int64_t *ids = s->f + 3 * i;
     for (int k = 0; k < 3; k++)
         for (int c = 0; c < 3; c++) corners[3 * k + c] = s->v[3 * ids[k] + c];
+    face_box(corners, corners + 3, corners + 6, box, box + 3);
+}
+
+/* Face i's normal (x1 - x0) x (x2 - x0) from its corners, as `faces` computes it. */
+static inline void face_normal(const double *corners, double *normal) {
     double e1[3], e2[3];
     sub3(corners + 3, corners, e1);
     sub3(corners + 6, corners, e2);
     cross3(e1, e2, normal);
-    face_box(corners, corners + 3, corners + 6, box, box + 3);
 }
 
 /* pair_intersects of faces a, b (the lower first, as `faces`), when both are valid, one is marked and their closed
@@ -862,10 +865,12 @@ static void test_pair(const CheckFaces *s, int64_t a, int64_t b) {
     if (a == b || !s->valid[a] || !s->valid[b] || !(s->only[a] || s->only[b]) || (s->flags[a] && s->flags[b]))
         return;
     double ta[9], tb[9], na[3], nb[3], ba[6], bb[6];
-    face_geometry(s, a, ta, na, ba);
-    face_geometry(s, b, tb, nb, bb);
+    face_corners_box(s, a, ta, ba);
+    face_corners_box(s, b, tb, bb);
     if (!(ba[0] <= bb[3] && bb[0] <= ba[3] && ba[1] <= bb[4] && bb[1] <= ba[4] && ba[2] <= bb[5] && bb[2] <= ba[5]))
         return;
+    face_normal(ta, na);
+    face_normal(tb, nb);
     if (pair_intersects(ta, tb, s->f + 3 * a, s->f + 3 * b, na, nb, ba, bb, sqrt(dot3(na, na)), sqrt(dot3(nb, nb))))
         s->flags[a] = s->flags[b] = 1;
 }
@@ -895,8 +900,8 @@ static int first_grid_feasible(const CheckFaces *s, int64_t nf, int64_t n, const
     int ok = 1;
     for (int64_t i = 0; i < nf && ok; i++) {
         if (!s->valid[i]) continue;
-        double corners[9], normal[3], b[6];
-        face_geometry(s, i, corners, normal, b);
+        double corners[9], b[6];
+        face_corners_box(s, i, corners, b);
         int64_t c[6];
         double span = 1;
         for (int k = 0; k < 3; k++) {
@@ -1161,25 +1166,29 @@ static PyObject *stars_flags(PyObject *self, PyObject *args) {
     int64_t ng = 0;
     double go[3] = {0, 0, 0}, gt[3] = {0, 0, 0};
     for (int64_t j = 0; j < np; j++) {
+        /* the box of the parent's children's vertices (a superset of its valid children's boxes is all the
+         * grid needs: each pair it lists is tested on its own) */
         double *b = gbox + 6 * j;
         int have = 0;
         interest[j] = 0;
         for (int g = 0; g < group; g++) {
             int64_t face = group * j + g;
-            if (!valid[face]) continue;
-            double corners[9], normal[3], fb[6];
-            face_geometry(&s, face, corners, normal, fb);
-            for (int k = 0; k < 3; k++) {
-                if (!have || fb[k] < b[k]) b[k] = fb[k];
-                if (!have || fb[3 + k] > b[3 + k]) b[3 + k] = fb[3 + k];
-            }
-            have = 1;
+            have |= valid[face];
             interest[j] |= s.only[face];
         }
         if (!have) {
             interest[j] = 2; /* no valid child: never a candidate */
             continue;
         }
+        const int64_t *c = s.f + 3 * group * j; /* corners: child 0's first, child 1's second, child 2's third */
+        int64_t ids[6] = {c[0], c[1], c[2], group == 4 ? c[4] : c[0], group == 4 ? c[5] : c[0], group == 4 ? c[8] : c[0]};
+        for (int k = 0; k < 3; k++) b[k] = b[3 + k] = s.v[3 * ids[0] + k];
+        for (int t = 1; t < 6; t++)
+            for (int k = 0; k < 3; k++) {
+                double x = s.v[3 * ids[t] + k];
+                if (x < b[k]) b[k] = x;
+                if (x > b[3 + k]) b[3 + k] = x;
+            }
         double x = 0;
         for (int k = 0; k < 3; k++) {
             if (b[3 + k] - b[k] > x) x = b[3 + k] - b[k];

@@ -180,7 +180,7 @@ def loop_and_midpoint(
     the connectivity computed once: (vertices', reference', faces'). neighbours: `mesh_edges(faces, V)` if known.
     creases: (E,) bool over the first level's edges: the crease rules (`loop_level`), kept by their halves."""
     if NATIVE and creases is None:
-        out = _native_levels(vertices, reference, faces, levels)
+        out = _native_levels(vertices, reference, faces, levels, neighbours)
         if out is not None:
             return out
     v, f, topology = _refine(vertices, faces, levels, midpoint=False, neighbours=neighbours, creases=creases)
@@ -190,17 +190,19 @@ def loop_and_midpoint(
     return v, r, f
 
 
-def _native_levels(vertices, reference, faces, levels: int):
+def _native_levels(vertices, reference, faces, levels: int, neighbours=None):
     """`loop_and_midpoint` without creases through geometry/_filter_native.c (the same bits), or None when the
-    faces are not a closed, consistently oriented 2-manifold (the reference handles those)."""
+    faces are not a closed, consistently oriented 2-manifold (the reference handles those). neighbours: the first
+    level's rows when the caller has them (the C code checks that they are the faces' half-edges)."""
     native = smoothing._filter_native
     v = np.ascontiguousarray(vertices, dtype=np.float64)
     r = np.ascontiguousarray(reference, dtype=np.float64)
     f = np.ascontiguousarray(faces, dtype=np.int64)
-    for _ in range(levels):
+    for level in range(levels):
         if len(f) == 0:
             break
-        half = np.ascontiguousarray(mesh_edges(f, len(v), closed=True))
+        half = neighbours if level == 0 and neighbours is not None else mesh_edges(f, len(v), closed=True)
+        half = np.ascontiguousarray(half, dtype=np.int64)
         if len(half) != 3 * len(f):
             return None
         size = len(v) + len(half) // 2
