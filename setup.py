@@ -6,8 +6,10 @@
   tets; geometry/marching_tets.py is the reference.
 * `tetweave_codec.geometry._intersect_native` (tetweave_codec/geometry/_intersect_native.c): the self-intersection
   test of the decoder's smoothing check; geometry/intersections.py is the reference.
-* `tetweave_codec.geometry._filter_native` (tetweave_codec/geometry/_filter_native.c): the decoder's Taubin steps
-  and Loop levels; geometry/smoothing.py and geometry/subdivision.py are the reference.
+* `tetweave_codec.geometry._filter_native` (tetweave_codec/geometry/_filter_native.c): the decoder's Taubin steps,
+  Loop levels and crease test; geometry/smoothing.py and geometry/subdivision.py are the reference.
+* `tetweave_codec._text_native` (tetweave_codec/_text_native.c): the rows of the OBJ and OFF writers; meshio.py is
+  the reference.
 
 Each Python module falls back to its numpy/Python code when its extension is absent, with identical output.
 `optional=True`: a machine without a C compiler still installs. The flags keep the binary64 results identical to
@@ -42,6 +44,9 @@ setup(
             ["tetweave_codec/geometry/_filter_native.c"],
             extra_compile_args=FLAGS,
             optional=True,
+        ),
+        Extension(
+            "tetweave_codec._text_native", ["tetweave_codec/_text_native.c"], extra_compile_args=FLAGS, optional=True
         ),
     ]
 )

@@ -21,6 +21,13 @@ import numpy as np
 
 from tetweave_codec.errors import InputError
 
+try:  # the compiled text rows (optional; the same bytes)
+    from tetweave_codec import _text_native
+except ImportError:  # not built: the %-formatting below
+    _text_native = None
+# tetweave_codec/_text_native.c for the OBJ and OFF rows; TETWEAVE_NATIVE=0: the Python formatting
+NATIVE = _text_native is not None and os.environ.get("TETWEAVE_NATIVE", "1") != "0"
+
 # File extensions we read and write, mapped to trimesh's file type names.
 MESH_FORMATS = {".obj": "obj", ".ply": "ply", ".stl": "stl", ".off": "off", ".glb": "glb", ".gltf": "gltf"}
 WRITE_FORMATS = (".obj", ".ply", ".stl", ".off", ".glb")
@@ -141,7 +148,7 @@ def mesh_bytes(vertices: np.ndarray, faces: np.ndarray, file_type: str) -> bytes
         # Enough decimals that rounding stays far below the float16 quantization of the decoded geometry.
         size = float(np.abs(v).max()) if len(v) else 1.0
         digits = _TEXT_DIGITS + max(0, -int(np.floor(np.log10(size)))) if size > 0 else _TEXT_DIGITS
-        return (_obj_text if file_type == "obj" else _off_text)(v, f, digits).encode("ascii")
+        return (_obj_text if file_type == "obj" else _off_text)(v, f, digits)
     if file_type == "ply":
         return _ply_bytes(v, f)
     if file_type == "stl":
@@ -159,16 +166,28 @@ def _rows_text(prefix: str, row_format: str, values: np.ndarray) -> str:
     return ((prefix + row_format + "\n") * len(values)) % tuple(values.ravel().tolist())
 
 
-def _obj_text(v: np.ndarray, f: np.ndarray, digits: int) -> str:
+def _float_rows(prefix: str, values: np.ndarray, digits: int) -> bytes:
+    """Rows of `prefix` and the values (R,C) float64 as "%.{digits}f", space-separated (ASCII bytes)."""
+    if NATIVE:
+        return _text_native.float_rows(np.ascontiguousarray(values, dtype=np.float64), prefix.encode(), digits)
+    return _rows_text(prefix, " ".join([f"%.{digits}f"] * values.shape[1]), values).encode("ascii")
+
+
+def _int_rows(prefix: str, values: np.ndarray, offset: int = 0) -> bytes:
+    """Rows of `prefix` and the values (R,C) int64 plus `offset` as "%d", space-separated (ASCII bytes)."""
+    if NATIVE:
+        return _text_native.int_rows(np.ascontiguousarray(values, dtype=np.int64), prefix.encode(), offset)
+    return _rows_text(prefix, " ".join(["%d"] * values.shape[1]), values + offset).encode("ascii")
+
+
+def _obj_text(v: np.ndarray, f: np.ndarray, digits: int) -> bytes:
     if not len(f):
-        return "# empty mesh\n"  # bare 'v' / 'f' lines, or none at all, are rejected by some readers
-    xyz = " ".join([f"%.{digits}f"] * 3)
-    return _rows_text("v ", xyz, v) + _rows_text("f ", "%d %d %d", f + 1)
+        return b"# empty mesh\n"  # bare 'v' / 'f' lines, or none at all, are rejected by some readers
+    return _float_rows("v ", v, digits) + _int_rows("f ", f, 1)
 
 
-def _off_text(v: np.ndarray, f: np.ndarray, digits: int) -> str:
-    xyz = " ".join([f"%.{digits}f"] * 3)
-    return f"OFF\n{len(v)} {len(f)} 0\n" + _rows_text("", xyz, v) + _rows_text("3 ", "%d %d %d", f)
+def _off_text(v: np.ndarray, f: np.ndarray, digits: int) -> bytes:
+    return f"OFF\n{len(v)} {len(f)} 0\n".encode() + _float_rows("", v, digits) + _int_rows("3 ", f)
 
 
 def _ply_bytes(v: np.ndarray, f: np.ndarray) -> bytes:
