@@ -27,6 +27,11 @@ _SUBCOMMANDS = {
 
 EXIT_USAGE = 2  # bad input of any kind, as click itself uses for usage errors
 
+# Commands that do no large matrix products: numpy's BLAS would start a thread pool at import whose idle threads
+# spin, ~0.1 s of CPU per `tetweave decode` on two cores (docs/measurements/decode_speed.md). One thread unless the
+# user chose otherwise; set before numpy is first imported (the command's module imports it).
+ONE_BLAS_THREAD = ("decode", "info")
+
 
 def fail(message: str, code: int = EXIT_USAGE) -> None:
     """Print one line on stderr and exit with `code`."""
@@ -45,6 +50,9 @@ class _ErrorReportingGroup(click.Group):
         if target is None:
             return None
         module_name, attr = target.split(":")
+        if cmd_name in ONE_BLAS_THREAD and "numpy" not in sys.modules:
+            for variable in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+                os.environ.setdefault(variable, "1")
         return getattr(importlib.import_module(module_name), attr)
 
     def invoke(self, ctx: click.Context):

@@ -282,3 +282,24 @@ def test_decode_of_a_smoothed_file_reports_its_smoothing(tmp_path, levels):
     v, faces = load_mesh(tmp_path / "out.ply")
     ref_v, ref_f = decode_bytes(path.read_bytes())
     assert np.array_equal(faces, ref_f) and np.allclose(v, ref_v, rtol=0, atol=1e-5)
+
+
+@pytest.mark.parametrize("chosen", [None, "3"])
+def test_decode_starts_numpy_with_one_blas_thread_unless_the_user_chose(tw_file, tmp_path, chosen):
+    """A fresh `tetweave decode` process sets OPENBLAS_NUM_THREADS=1 before numpy's first import (its idle pool
+    only costs CPU there); a value the user set is kept."""
+    import sys
+
+    code = (
+        "import os, sys\n"
+        "from tetweave_codec.cli.main import main\n"
+        f"try:\n    main(['decode', {str(tw_file)!r}, '-o', {str(tmp_path / 'out.ply')!r}])\n"
+        "except SystemExit:\n    pass\n"
+        "print(os.environ.get('OPENBLAS_NUM_THREADS'), 'numpy' in sys.modules)\n"
+    )
+    env = {k: v for k, v in os.environ.items() if k not in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}
+    if chosen:
+        env["OPENBLAS_NUM_THREADS"] = chosen
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.split()[-2:] == [chosen or "1", "True"]
