@@ -813,7 +813,8 @@ done:
  *   boxes overlap is tested.
  * - Parents that share a vertex u: both lie in u's patch, the children of the parents around u. The patch is a
  *   disk (a closed fan of parents, checked, refined as loop_level refines it). Projected along N, the sum of its
- *   faces' normals, every face of the patch has twice its area at least STAR_MARGIN times its longest edge squared, and
+ *   faces' normals, every face of the patch has twice its area at least STAR_MARGIN times its longest edge squared
+ *   (shown for each parent's children at once, from the cone of their normals: ParentRec), and
  *   its boundary turns around u by at least STAR_MARGIN (sine of the angle) at every step and once in all: the
  *   projection of a disk whose faces all keep their orientation and whose boundary is a simple closed curve is
  *   one-to-one (each point inside the curve has one preimage, counted with orientation), so no two faces of the
@@ -931,21 +932,35 @@ static int first_grid_feasible(const CheckFaces *s, int64_t nf, int64_t n, const
     return ok;
 }
 
+/* A parent as the patches read it (one record, so that a patch touches a few cache lines, not its 24 faces): its
+ * corners and edge midpoints, the sum of its children's normals, and a cone that holds their unit normals: every
+ * child's unit normal is within angle t of `axis` (cos_t, sin_t), and `need` = the largest of STAR_MARGIN (longest
+ * edge)^2 / |normal| over the children. ok: every child valid and the cone narrower than a half-space. */
+typedef struct {
+    int64_t ids[3], mid[3]; /* mid: m01, m12, m20 (children 4), the middle child's corners */
+    double nsum[3], axis[3], cos_t, sin_t, need;
+    uint8_t ok, marked;
+} ParentRec;
+
+/* Rounding allowance of the cone test (its inputs are unit vectors; the test's margin is STAR_MARGIN) */
+#define CONE_SLACK 1e-9
+
 /* One vertex's patch: 1 when it is shown free of crossings (see above), 0 when its pairs must be tested. pf: the
  * k parents around u; group: children per parent. */
-static int patch_certified(const CheckFaces *s, const int64_t *parents, int group, int64_t u, const int64_t *pf,
+static int patch_certified(const CheckFaces *s, const ParentRec *recs, int group, int64_t u, const int64_t *pf,
                            int64_t k) {
     if (k < 3 || k > MAX_STAR) return 0;
     int64_t a[MAX_STAR], b[MAX_STAR], mid[MAX_STAR], spoke_a[MAX_STAR], spoke_b[MAX_STAR], order[MAX_STAR];
     uint8_t used[MAX_STAR];
     for (int64_t t = 0; t < k; t++) {
-        const int64_t *p = parents + 3 * pf[t];
-        if (p[0] == p[1] || p[1] == p[2] || p[2] == p[0]) return 0;
+        const ParentRec *r = recs + pf[t];
+        const int64_t *p = r->ids;
+        if (!r->ok || p[0] == p[1] || p[1] == p[2] || p[2] == p[0]) return 0;
         int at = p[0] == u ? 0 : p[1] == u ? 1 : 2;
         a[t] = p[(at + 1) % 3];
         b[t] = p[(at + 2) % 3];
         if (group == 4) { /* the middle child (m01, m12, m20): edge (x_e, x_e+1) has its midpoint at e */
-            const int64_t *m = s->f + 3 * (4 * pf[t] + 3);
+            const int64_t *m = r->mid;
             mid[t] = m[(at + 1) % 3];
             spoke_a[t] = m[at];           /* midpoint of (u, a) */
             spoke_b[t] = m[(at + 2) % 3]; /* midpoint of (b, u) */
@@ -983,31 +998,22 @@ static int patch_certified(const CheckFaces *s, const int64_t *parents, int grou
                 if (spoke_a[x] == a[c] || spoke_a[x] == mid[c]) return 0;
         }
     /* N: the sum of the children's normals */
-    double nrm[3] = {0, 0, 0}, normals[4 * MAX_STAR][3], longest[4 * MAX_STAR];
+    double nrm[3] = {0, 0, 0};
     for (int64_t t = 0; t < k; t++)
-        for (int g = 0; g < group; g++) {
-            const int64_t *ids = s->f + 3 * (group * pf[t] + g);
-            const double *p0 = s->v + 3 * ids[0], *p1 = s->v + 3 * ids[1], *p2 = s->v + 3 * ids[2];
-            double e1[3], e2[3], e3[3], *n = normals[group * t + g];
-            sub3(p1, p0, e1);
-            sub3(p2, p0, e2);
-            sub3(p2, p1, e3);
-            cross3(e1, e2, n);
-            double l1 = dot3(e1, e1), l2 = dot3(e2, e2), l3 = dot3(e3, e3);
-            longest[group * t + g] = l1 > l2 ? (l1 > l3 ? l1 : l3) : (l2 > l3 ? l2 : l3);
-            nrm[0] += n[0];
-            nrm[1] += n[1];
-            nrm[2] += n[2];
-        }
+        for (int c = 0; c < 3; c++) nrm[c] += recs[pf[t]].nsum[c];
     double len = sqrt(dot3(nrm, nrm));
     if (!(len > 0)) return 0;
     for (int c = 0; c < 3; c++) nrm[c] /= len;
-    /* every child keeps its orientation with area to spare: (projected double area) >= margin (longest edge)^2 */
-    for (int64_t t = 0; t < k; t++)
-        for (int g = 0; g < group; g++) {
-            if (!s->valid[group * pf[t] + g] || !(dot3(normals[group * t + g], nrm) >= STAR_MARGIN * longest[group * t + g]))
-                return 0;
-        }
+    /* every child keeps its orientation with area to spare, (projected double area) >= margin (longest edge)^2:
+     * its unit normal is within t of the cone's axis, the axis within a of N, so their angle is at most a + t and
+     * the projected share of its area at least cos(a + t) >= need */
+    for (int64_t t = 0; t < k; t++) {
+        const ParentRec *r = recs + pf[t];
+        double d = dot3(r->axis, nrm);
+        if (!(d > 0)) return 0;
+        double sin_a = sqrt(d < 1 ? 1 - d * d : 0);
+        if (!(d * r->cos_t - sin_a * r->sin_t >= r->need + CONE_SLACK)) return 0;
+    }
     /* the boundary, projected on a basis (e1, e2) of the plane normal to N, turns around u once, each step by a
      * positive angle with margin */
     double e1[3], e2[3], axis[3] = {0, 0, 0};
@@ -1072,7 +1078,8 @@ static PyObject *stars_flags(PyObject *self, PyObject *args) {
     int status = 2;
     uint8_t *valid = NULL, *interest = NULL;
     double *ext = NULL, *gbox = NULL, *gext = NULL;
-    int64_t *parents = NULL, *vstart = NULL, *vfaces = NULL, *gc = NULL, *bucket = NULL;
+    ParentRec *recs = NULL;
+    int64_t *vstart = NULL, *vfaces = NULL, *gc = NULL, *bucket = NULL;
     int32_t *cstart = NULL;
     CellParent *local = NULL;
     Py_BEGIN_ALLOW_THREADS;
@@ -1085,49 +1092,95 @@ static PyObject *stars_flags(PyObject *self, PyObject *args) {
         goto done;
     }
     s.valid = valid;
-    int64_t n = 0, nv = (int64_t)(bv.len / 24);
+    int64_t n = 0, nv = (int64_t)(bv.len / 24), np = nf / group;
+    if (nf % group) goto done;
+    recs = (ParentRec *)malloc(sizeof(ParentRec) * (size_t)(np > 0 ? np : 1));
+    gbox = (double *)malloc(sizeof(double) * 6 * (size_t)(np > 0 ? np : 1));
+    interest = (uint8_t *)malloc((size_t)(np > 0 ? np : 1));
+    if (!recs || !gbox || !interest) {
+        status = -1;
+        goto done;
+    }
+    /* one pass over the faces, parent by parent: as `faces`, the valid faces, their boxes and extents (the
+     * reference's grid); each parent's record (runs checked to be Loop children) and box (its valid children's) */
     double origin[3] = {0, 0, 0}, top[3] = {0, 0, 0};
-    for (int64_t i = 0; i < nf; i++) { /* as `faces`: valid faces, normals, boxes, extents */
-        const double *p0 = s.v + 3 * s.f[3 * i], *p1 = s.v + 3 * s.f[3 * i + 1], *p2 = s.v + 3 * s.f[3 * i + 2];
-        double e1[3], e2[3], c[3], b[6];
-        sub3(p1, p0, e1);
-        sub3(p2, p0, e2);
-        cross3(e1, e2, c);
-        valid[i] = dot3(c, c) > 0;
-        if (!valid[i]) continue;
-        double x = face_box(p0, p1, p2, b, b + 3);
-        for (int k = 0; k < 3; k++) {
-            if (n == 0 || b[k] < origin[k]) origin[k] = b[k];
-            if (n == 0 || b[3 + k] > top[k]) top[k] = b[3 + k];
+    int loop_runs = 1;
+    for (int64_t j = 0; j < np; j++) {
+        const int64_t *c = s.f + 3 * group * j;
+        ParentRec *r = recs + j;
+        if (group == 1) {
+            r->ids[0] = c[0], r->ids[1] = c[1], r->ids[2] = c[2];
+            r->mid[0] = r->mid[1] = r->mid[2] = -1;
+        } else {
+            int64_t m01 = c[1], m20 = c[2], m12 = c[5];
+            r->ids[0] = c[0], r->ids[1] = c[4], r->ids[2] = c[8];
+            r->mid[0] = m01, r->mid[1] = m12, r->mid[2] = m20;
+            if (c[3] != m01 || c[6] != m20 || c[7] != m12 || c[9] != m01 || c[10] != m12 || c[11] != m20) loop_runs = 0;
         }
-        ext[n++] = x;
+        double unit[4][3], sum_u[3] = {0, 0, 0}, *gb = gbox + 6 * j;
+        r->nsum[0] = r->nsum[1] = r->nsum[2] = 0;
+        r->need = 0;
+        r->ok = 1;
+        r->marked = 0;
+        interest[j] = 2; /* no valid child: never a candidate of the parents' grid */
+        for (int g = 0; g < group; g++) {
+            int64_t face = group * j + g;
+            const double *p0 = s.v + 3 * s.f[3 * face], *p1 = s.v + 3 * s.f[3 * face + 1];
+            const double *p2 = s.v + 3 * s.f[3 * face + 2];
+            double e1[3], e2[3], e3[3], nrm[3], b[6];
+            sub3(p1, p0, e1);
+            sub3(p2, p0, e2);
+            cross3(e1, e2, nrm);
+            double nn = dot3(nrm, nrm);
+            valid[face] = nn > 0;
+            r->marked |= s.only[face];
+            if (!valid[face]) {
+                r->ok = 0;
+                continue;
+            }
+            double x = face_box(p0, p1, p2, b, b + 3);
+            for (int k = 0; k < 3; k++) {
+                if (n == 0 || b[k] < origin[k]) origin[k] = b[k];
+                if (n == 0 || b[3 + k] > top[k]) top[k] = b[3 + k];
+                if (interest[j] == 2 || b[k] < gb[k]) gb[k] = b[k];
+                if (interest[j] == 2 || b[3 + k] > gb[3 + k]) gb[3 + k] = b[3 + k];
+            }
+            ext[n++] = x;
+            interest[j] = (interest[j] == 2 ? 0 : interest[j]) | s.only[face];
+            /* the cone of the children's unit normals and the margin they need (patch_certified) */
+            sub3(p2, p1, e3);
+            double nl = sqrt(nn), l1 = dot3(e1, e1), l2 = dot3(e2, e2), l3 = dot3(e3, e3);
+            double longest = l1 > l2 ? (l1 > l3 ? l1 : l3) : (l2 > l3 ? l2 : l3);
+            double need = STAR_MARGIN * longest / nl;
+            if (need > r->need) r->need = need;
+            for (int k = 0; k < 3; k++) {
+                r->nsum[k] += nrm[k];
+                unit[g][k] = nrm[k] / nl;
+                sum_u[k] += unit[g][k];
+            }
+        }
+        double sl = sqrt(dot3(sum_u, sum_u));
+        r->cos_t = -1;
+        if (r->ok && sl > 0) {
+            for (int k = 0; k < 3; k++) r->axis[k] = sum_u[k] / sl;
+            double lowest = 1;
+            for (int g = 0; g < group; g++) {
+                double d = dot3(unit[g], r->axis);
+                if (d < lowest) lowest = d;
+            }
+            r->cos_t = lowest;
+        }
+        if (!(r->cos_t > 0)) r->ok = 0;
+        r->sin_t = r->ok ? sqrt(1 - r->cos_t * r->cos_t) : 1;
     }
     if (nf < 2 || n < 2) { /* `faces` flags nothing */
         status = 0;
         goto done;
     }
-    if (nf % group) goto done;
+    if (!loop_runs) goto done;
     int feasible = first_grid_feasible(&s, nf, n, ext, origin, top);
     if (feasible < 0) status = -1;
     if (feasible <= 0) goto done;
-    /* the parents, and the runs checked to be Loop children */
-    int64_t np = nf / group;
-    parents = (int64_t *)malloc(sizeof(int64_t) * 3 * (size_t)np);
-    if (!parents) {
-        status = -1;
-        goto done;
-    }
-    for (int64_t j = 0; j < np; j++) {
-        const int64_t *c = s.f + 3 * group * j;
-        int64_t *p = parents + 3 * j;
-        if (group == 1) {
-            p[0] = c[0], p[1] = c[1], p[2] = c[2];
-            continue;
-        }
-        int64_t m01 = c[1], m20 = c[2], m12 = c[5];
-        p[0] = c[0], p[1] = c[4], p[2] = c[8];
-        if (c[3] != m01 || c[6] != m20 || c[7] != m12 || c[9] != m01 || c[10] != m12 || c[11] != m20) goto done;
-    }
     /* the parents around each vertex */
     vstart = (int64_t *)calloc((size_t)nv + 1, sizeof(int64_t));
     vfaces = (int64_t *)malloc(sizeof(int64_t) * 3 * (size_t)np);
@@ -1135,19 +1188,19 @@ static PyObject *stars_flags(PyObject *self, PyObject *args) {
         status = -1;
         goto done;
     }
-    for (int64_t j = 0; j < 3 * np; j++) vstart[parents[j] + 1]++;
+    for (int64_t j = 0; j < np; j++)
+        for (int c = 0; c < 3; c++) vstart[recs[j].ids[c] + 1]++;
     for (int64_t u = 0; u < nv; u++) vstart[u + 1] += vstart[u];
     for (int64_t j = 0; j < np; j++)
-        for (int c = 0; c < 3; c++) vfaces[vstart[parents[3 * j + c]]++] = j;
+        for (int c = 0; c < 3; c++) vfaces[vstart[recs[j].ids[c]]++] = j;
     for (int64_t u = nv; u > 0; u--) vstart[u] = vstart[u - 1];
     vstart[0] = 0;
     /* patches */
     for (int64_t u = 0; u < nv; u++) {
         const int64_t *pf = vfaces + vstart[u];
         int64_t k = vstart[u + 1] - vstart[u], any = 0;
-        for (int64_t t = 0; t < k && !any; t++)
-            for (int g = 0; g < group; g++) any |= s.only[group * pf[t] + g];
-        if (!any || patch_certified(&s, parents, group, u, pf, k)) continue;
+        for (int64_t t = 0; t < k && !any; t++) any |= recs[pf[t]].marked;
+        if (!any || patch_certified(&s, recs, group, u, pf, k)) continue;
         for (int64_t t = 0; t < k; t++)
             for (int g = 0; g < group; g++)
                 for (int64_t w = t; w < k; w++)
@@ -1155,40 +1208,17 @@ static PyObject *stars_flags(PyObject *self, PyObject *args) {
                         test_pair(&s, group * pf[t] + g, group * pf[w] + h);
     }
     /* parents sharing no vertex: a grid over their boxes */
-    gbox = (double *)malloc(sizeof(double) * 6 * (size_t)np);
     gext = (double *)malloc(sizeof(double) * (size_t)np);
-    interest = (uint8_t *)malloc((size_t)np);
     gc = (int64_t *)malloc(sizeof(int64_t) * 6 * (size_t)np);
-    if (!gbox || !gext || !interest || !gc) {
+    if (!gext || !gc) {
         status = -1;
         goto done;
     }
     int64_t ng = 0;
     double go[3] = {0, 0, 0}, gt[3] = {0, 0, 0};
     for (int64_t j = 0; j < np; j++) {
-        /* the box of the parent's children's vertices (a superset of its valid children's boxes is all the
-         * grid needs: each pair it lists is tested on its own) */
-        double *b = gbox + 6 * j;
-        int have = 0;
-        interest[j] = 0;
-        for (int g = 0; g < group; g++) {
-            int64_t face = group * j + g;
-            have |= valid[face];
-            interest[j] |= s.only[face];
-        }
-        if (!have) {
-            interest[j] = 2; /* no valid child: never a candidate */
-            continue;
-        }
-        const int64_t *c = s.f + 3 * group * j; /* corners: child 0's first, child 1's second, child 2's third */
-        int64_t ids[6] = {c[0], c[1], c[2], group == 4 ? c[4] : c[0], group == 4 ? c[5] : c[0], group == 4 ? c[8] : c[0]};
-        for (int k = 0; k < 3; k++) b[k] = b[3 + k] = s.v[3 * ids[0] + k];
-        for (int t = 1; t < 6; t++)
-            for (int k = 0; k < 3; k++) {
-                double x = s.v[3 * ids[t] + k];
-                if (x < b[k]) b[k] = x;
-                if (x > b[3 + k]) b[3 + k] = x;
-            }
+        if (interest[j] == 2) continue;
+        const double *b = gbox + 6 * j;
         double x = 0;
         for (int k = 0; k < 3; k++) {
             if (b[3 + k] - b[k] > x) x = b[3 + k] - b[k];
@@ -1286,7 +1316,7 @@ static PyObject *stars_flags(PyObject *self, PyObject *args) {
                         l->box[k] = gbox[6 * p + k];
                         l->box[3 + k] = gbox[6 * p + 3 + k];
                         l->c0[k] = gc[6 * p + k];
-                        l->ids[k] = parents[3 * p + k];
+                        l->ids[k] = recs[p].ids[k];
                     }
                 }
                 for (int64_t i = 0; i < m; i++) {
@@ -1315,7 +1345,7 @@ done:
     if (status == 2) memset(s.flags, 0, (size_t)nf);
     free(valid);
     free(ext);
-    free(parents);
+    free(recs);
     free(vstart);
     free(vfaces);
     free(gbox);
