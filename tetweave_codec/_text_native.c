@@ -123,6 +123,17 @@ static int put_python_fixed(Out *o, double x, int digits) {
     return r;
 }
 
+/* The end of float_rows and int_rows: the bytes written (ok), or NULL with the error set (out of memory unless
+ * another error is); the buffer and the rows freed either way. */
+static PyObject *finish(Out *o, Py_buffer *view, int ok) {
+    PyObject *out = NULL;
+    if (ok) out = PyBytes_FromStringAndSize(o->buf ? o->buf : "", (Py_ssize_t)o->len);
+    else if (!PyErr_Occurred()) PyErr_NoMemory();
+    PyBuffer_Release(view);
+    PyMem_Free(o->buf);
+    return out;
+}
+
 static PyObject *float_rows(PyObject *self, PyObject *args) {
     PyObject *ov;
     const char *prefix;
@@ -156,15 +167,9 @@ static PyObject *float_rows(PyObject *self, PyObject *args) {
         }
         o.buf[o.len++] = '\n';
     }
-    PyBuffer_Release(&view);
-    PyObject *out = PyBytes_FromStringAndSize(o.buf ? o.buf : "", (Py_ssize_t)o.len);
-    PyMem_Free(o.buf);
-    return out;
+    return finish(&o, &view, 1);
 nomem:
-    PyBuffer_Release(&view);
-    PyMem_Free(o.buf);
-    if (!PyErr_Occurred()) PyErr_NoMemory();
-    return NULL;
+    return finish(&o, &view, 0);
 }
 
 static PyObject *int_rows(PyObject *self, PyObject *args) {
@@ -191,10 +196,8 @@ static PyObject *int_rows(PyObject *self, PyObject *args) {
             if (j) o.buf[o.len++] = ' ';
             int64_t x = v[i * cols + j];
             if ((offset > 0 && x > INT64_MAX - offset) || (offset < 0 && x < INT64_MIN - offset)) {
-                PyBuffer_Release(&view);
-                PyMem_Free(o.buf);
                 PyErr_SetString(PyExc_OverflowError, "int_rows: value + offset out of int64");
-                return NULL;
+                return finish(&o, &view, 0);
             }
             x += offset;
             uint64_t u = (uint64_t)x;
@@ -206,14 +209,9 @@ static PyObject *int_rows(PyObject *self, PyObject *args) {
         }
         o.buf[o.len++] = '\n';
     }
-    PyBuffer_Release(&view);
-    PyObject *out = PyBytes_FromStringAndSize(o.buf ? o.buf : "", (Py_ssize_t)o.len);
-    PyMem_Free(o.buf);
-    return out;
+    return finish(&o, &view, 1);
 nomem:
-    PyBuffer_Release(&view);
-    PyMem_Free(o.buf);
-    return PyErr_NoMemory();
+    return finish(&o, &view, 0);
 }
 
 static PyMethodDef methods[] = {

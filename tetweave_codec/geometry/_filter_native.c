@@ -50,6 +50,16 @@ static void release(Buf *b, int n) {
         if (b[i].have) PyBuffer_Release(&b[i].view);
 }
 
+/* 0 when every one of x[0..count) is a vertex index (0 <= x < nv), else -1 with "NAME: index out of range" set */
+static int indices_in_range(const int64_t *x, int64_t count, int64_t nv, const char *name) {
+    for (int64_t i = 0; i < count; i++)
+        if (x[i] < 0 || x[i] >= nv) {
+            PyErr_Format(PyExc_ValueError, "%s: index out of range", name);
+            return -1;
+        }
+    return 0;
+}
+
 /* sum (V,3) of v[dst] over edges in list order per src, from 0.0 (np.bincount's order) */
 static void neighbour_sums(const double *v, const int64_t *e, int64_t ne, int64_t nv, double *sum) {
     memset(sum, 0, sizeof(double) * 3 * (size_t)nv);
@@ -81,12 +91,10 @@ static PyObject *taubin(PyObject *self, PyObject *args) {
     int64_t nv = b[0].view.len / 24, ne = b[1].view.len / 16;
     double *v = (double *)b[0].view.buf;
     const int64_t *e = (const int64_t *)b[1].view.buf;
-    for (int64_t i = 0; i < 2 * ne; i++)
-        if (e[i] < 0 || e[i] >= nv) {
-            release(b, 2);
-            PyErr_SetString(PyExc_ValueError, "edges: index out of range");
-            return NULL;
-        }
+    if (indices_in_range(e, 2 * ne, nv, "edges") < 0) {
+        release(b, 2);
+        return NULL;
+    }
     int status = 0;
     Py_BEGIN_ALLOW_THREADS;
     double *sum = (double *)malloc(sizeof(double) * 3 * (size_t)(nv > 0 ? nv : 1));
@@ -138,16 +146,7 @@ static PyObject *loop(PyObject *self, PyObject *args) {
     const int64_t *f = (const int64_t *)b[2].view.buf, *e = (const int64_t *)b[3].view.buf;
     double *out_v = (double *)b[4].view.buf, *out_r = (double *)b[5].view.buf;
     int64_t *out_f = (int64_t *)b[6].view.buf;
-    for (int64_t i = 0; i < 2 * nh; i++)
-        if (e[i] < 0 || e[i] >= nv) {
-            PyErr_SetString(PyExc_ValueError, "edges: index out of range");
-            goto bad;
-        }
-    for (int64_t i = 0; i < 3 * nf; i++)
-        if (f[i] < 0 || f[i] >= nv) {
-            PyErr_SetString(PyExc_ValueError, "faces: index out of range");
-            goto bad;
-        }
+    if (indices_in_range(e, 2 * nh, nv, "edges") < 0 || indices_in_range(f, 3 * nf, nv, "faces") < 0) goto bad;
     int status = 0;
     Py_BEGIN_ALLOW_THREADS;
     int64_t *start = (int64_t *)calloc((size_t)nv + 1, sizeof(int64_t));
@@ -272,16 +271,7 @@ static PyObject *creases(PyObject *self, PyObject *args) {
     const double *v = (const double *)b[0].view.buf;
     const int64_t *f = (const int64_t *)b[1].view.buf, *e = (const int64_t *)b[2].view.buf;
     uint8_t *sharp = (uint8_t *)b[3].view.buf;
-    for (int64_t i = 0; i < 2 * nh; i++)
-        if (e[i] < 0 || e[i] >= nv) {
-            PyErr_SetString(PyExc_ValueError, "edges: index out of range");
-            goto bad;
-        }
-    for (int64_t i = 0; i < 3 * nf; i++)
-        if (f[i] < 0 || f[i] >= nv) {
-            PyErr_SetString(PyExc_ValueError, "faces: index out of range");
-            goto bad;
-        }
+    if (indices_in_range(e, 2 * nh, nv, "edges") < 0 || indices_in_range(f, 3 * nf, nv, "faces") < 0) goto bad;
     int status = 0;
     Py_BEGIN_ALLOW_THREADS;
     int64_t *start = (int64_t *)calloc((size_t)nv + 1, sizeof(int64_t));

@@ -397,6 +397,17 @@ static int get_face_buffers(PyObject *args, Py_buffer *bv, Py_buffer *bf, Py_buf
     return 0;
 }
 
+/* The end of faces_flags, marked_flags and stars_flags: the four buffers of get_face_buffers released, status
+ * returned (-1: out of memory). */
+static PyObject *face_check_result(Py_buffer *bv, Py_buffer *bf, Py_buffer *bo, Py_buffer *bm, int status) {
+    PyBuffer_Release(bv);
+    PyBuffer_Release(bf);
+    PyBuffer_Release(bo);
+    PyBuffer_Release(bm);
+    if (status < 0) return PyErr_NoMemory();
+    return PyLong_FromLong(status);
+}
+
 static PyObject *faces_flags(PyObject *self, PyObject *args) {
     Py_buffer bv, bf, bo, bm;
     int64_t nf;
@@ -556,12 +567,7 @@ done:
     free(lids);
     free(normal);
     Py_END_ALLOW_THREADS;
-    PyBuffer_Release(&bv);
-    PyBuffer_Release(&bf);
-    PyBuffer_Release(&bo);
-    PyBuffer_Release(&bm);
-    if (status < 0) return PyErr_NoMemory();
-    return PyLong_FromLong(status);
+    return face_check_result(&bv, &bf, &bo, &bm, status);
 }
 
 /* One face's corners, normal (x1 - x0) x (x2 - x0), its length, box and vertex indices, as `faces` gathers them. */
@@ -788,12 +794,7 @@ done:
     free(who);
     free(mk);
     Py_END_ALLOW_THREADS;
-    PyBuffer_Release(&bv);
-    PyBuffer_Release(&bf);
-    PyBuffer_Release(&bo);
-    PyBuffer_Release(&bm);
-    if (status < 0) return PyErr_NoMemory();
-    return PyLong_FromLong(status);
+    return face_check_result(&bv, &bf, &bo, &bm, status);
 }
 
 /* ------------------------------------------------------------------------------------------------------------
@@ -1356,12 +1357,7 @@ done:
     free(bucket);
     free(local);
     Py_END_ALLOW_THREADS;
-    PyBuffer_Release(&bv);
-    PyBuffer_Release(&bf);
-    PyBuffer_Release(&bo);
-    PyBuffer_Release(&bm);
-    if (status < 0) return PyErr_NoMemory();
-    return PyLong_FromLong(status);
+    return face_check_result(&bv, &bf, &bo, &bm, status);
 }
 
 static PyMethodDef methods[] = {
