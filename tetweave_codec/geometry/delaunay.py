@@ -1,7 +1,7 @@
 """Delaunay tetrahedralization of a bare point set: TetGen by default, scipy's Qhull as permissive fallback.
 
-Backends, measured on the 2-core development machine for 64K float16-rounded points in a thin shell
-(one run, a machine shared with other jobs, so +-30 %):
+Backends, measured on a 2-core CPU for 64K float16-rounded points in a thin shell (one run, timing noise
++-30 %):
 
 =========================  ===========  ==============  ==========================================
 backend                    64K points   license         notes
