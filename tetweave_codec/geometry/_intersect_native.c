@@ -570,6 +570,123 @@ done:
     return face_check_result(&bv, &bf, &bo, &bm, status);
 }
 
+/* The faces of one check. Boxes and normals are computed where they are needed, not stored: storing them for
+ * 320K faces cost more in fresh pages than computing them three times. */
+typedef struct {
+    const double *v;
+    const int64_t *f;
+    const uint8_t *valid, *only;
+    uint8_t *flags;
+} CheckFaces;
+
+/* Face i's corners (9 coordinates) and closed box (lo xyz, hi xyz), as `faces` computes them. */
+static inline void face_corners_box(const CheckFaces *s, int64_t i, double *corners, double *box) {
+    const int64_t *ids = s->f + 3 * i;
+    for (int k = 0; k < 3; k++)
+        for (int c = 0; c < 3; c++) corners[3 * k + c] = s->v[3 * ids[k] + c];
+    face_box(corners, corners + 3, corners + 6, box, box + 3);
+}
+
+/* Face i's normal (x1 - x0) x (x2 - x0) from its corners, as `faces` computes it. */
+static inline void face_normal(const double *corners, double *normal) {
+    double e1[3], e2[3];
+    sub3(corners + 3, corners, e1);
+    sub3(corners + 6, corners, e2);
+    cross3(e1, e2, normal);
+}
+
+/* pair_intersects of faces a, b (the lower first, as `faces`), when both are valid, one is marked and their closed
+ * boxes overlap: flags both when it accepts. */
+static void test_pair(const CheckFaces *s, int64_t a, int64_t b) {
+    if (a > b) {
+        int64_t t = a;
+        a = b;
+        b = t;
+    }
+    if (a == b || !s->valid[a] || !s->valid[b] || !(s->only[a] || s->only[b]) || (s->flags[a] && s->flags[b]))
+        return;
+    double ta[9], tb[9], na[3], nb[3], ba[6], bb[6];
+    face_corners_box(s, a, ta, ba);
+    face_corners_box(s, b, tb, bb);
+    if (!(ba[0] <= bb[3] && bb[0] <= ba[3] && ba[1] <= bb[4] && bb[1] <= ba[4] && ba[2] <= bb[5] && bb[2] <= ba[5]))
+        return;
+    face_normal(ta, na);
+    face_normal(tb, nb);
+    if (pair_intersects(ta, tb, s->f + 3 * a, s->f + 3 * b, na, nb, ba, bb, sqrt(dot3(na, na)), sqrt(dot3(nb, nb))))
+        s->flags[a] = s->flags[b] = 1;
+}
+
+/* The cells c (6: lower x y z, upper x y z) that the closed box lo (3,), hi (3,) covers on the lattice of side
+ * `cell` from `origin`: every quotient is >= 0, where truncation is floor (the reference's floor of the same
+ * quotient). Returns the number of cells, summed as the reference's grid sums it. */
+static inline double cell_range(const double *lo, const double *hi, const double *origin, double cell, int64_t *c) {
+    double span = 1;
+    for (int k = 0; k < 3; k++) {
+        c[k] = (int64_t)((lo[k] - origin[k]) / cell);
+        c[3 + k] = (int64_t)((hi[k] - origin[k]) / cell);
+        span *= (double)c[3 + k] - (double)c[k] + 1;
+    }
+    return span;
+}
+
+/* 1 when the reference's grid is feasible at its first cell size (`faces` then answers with the pair set; *cell
+ * and dims (3,) are that lattice's), 0 when that is not known here, -1 out of memory. n valid faces, ext their
+ * extents in face order, origin and top the corners of their boxes; lo, hi (F,3) the boxes when the caller keeps
+ * them, else NULL (computed from the corners). Why the count decides: see `marked` below. */
+static int first_grid_feasible(const CheckFaces *s, const double *lo, const double *hi, int64_t nf, int64_t n,
+                               const double *ext, const double *origin, const double *top, double *cell_out,
+                               int64_t *dims) {
+    double *sorted = (double *)malloc(sizeof(double) * (size_t)n);
+    if (!sorted) return -1;
+    double cell = first_cell(ext, sorted, n);
+    free(sorted);
+    *cell_out = cell;
+    /* floor is monotone: the largest upper cell is that of the largest upper coordinate */
+    for (int k = 0; k < 3; k++) {
+        double q = (top[k] - origin[k]) / cell;
+        if (!(q < 1e9)) return 0; /* also NaN: a lattice this fine is never counted densely */
+        dims[k] = (int64_t)q + 1;
+    }
+    int cb = bit_length((uint64_t)dims[0]) + bit_length((uint64_t)dims[1]) + bit_length((uint64_t)dims[2]);
+    if (bit_length((uint64_t)n) + cb > 63) return 0;
+    if ((double)dims[0] * (double)dims[1] * (double)dims[2] > (double)MAX_DENSE_CELLS) return 0;
+    uint16_t *counts = (uint16_t *)calloc((size_t)(dims[0] * dims[1] * dims[2]), sizeof(uint16_t));
+    if (!counts) return -1;
+    double limit = 64.0 * (double)n + 1000000.0, total_cells = 0;
+    long long pairs = 0;
+    int ok = 1;
+    for (int64_t i = 0; i < nf && ok; i++) {
+        if (!s->valid[i]) continue;
+        double corners[9], b[6];
+        if (lo) {
+            memcpy(b, lo + 3 * i, 3 * sizeof(double));
+            memcpy(b + 3, hi + 3 * i, 3 * sizeof(double));
+        } else {
+            face_corners_box(s, i, corners, b);
+        }
+        int64_t c[6];
+        total_cells += cell_range(b, b + 3, origin, cell, c);
+        if (total_cells > limit) {
+            ok = 0;
+            break;
+        }
+        for (int64_t x = c[0]; x <= c[3] && ok; x++)
+            for (int64_t y = c[1]; y <= c[4] && ok; y++)
+                for (int64_t z = c[2]; z <= c[5]; z++) {
+                    uint16_t *cnt = counts + (x * dims[1] + y) * dims[2] + z;
+                    if (*cnt == UINT16_MAX) {
+                        ok = 0;
+                        break;
+                    }
+                    pairs += *cnt;
+                    (*cnt)++;
+                }
+        if (pairs > MAX_CANDIDATE_PAIRS) ok = 0;
+    }
+    free(counts);
+    return ok;
+}
+
 /* One face's corners, normal (x1 - x0) x (x2 - x0), its length, box and vertex indices, as `faces` gathers them. */
 typedef struct {
     double corners[9], normal[3], box[6], nlen;
@@ -617,11 +734,10 @@ static PyObject *marked_flags(PyObject *self, PyObject *args) {
     const int64_t *f = (const int64_t *)bf.buf;
     uint8_t *flags = (uint8_t *)bo.buf;
     int status = 2;
-    double *lo = NULL, *hi = NULL, *ext = NULL, *sorted = NULL;
+    double *lo = NULL, *hi = NULL, *ext = NULL;
     uint8_t *valid = NULL;
-    uint16_t *counts = NULL;
     uint64_t *hot = NULL; /* one bit per cell: some marked face covers it (fits a cache where head does not) */
-    int32_t *cells = NULL, *head = NULL, *next = NULL, *who = NULL;
+    int32_t *head = NULL, *next = NULL, *who = NULL;
     FaceData *mk = NULL;
     Py_BEGIN_ALLOW_THREADS;
     memset(flags, 0, (size_t)nf);
@@ -630,8 +746,7 @@ static PyObject *marked_flags(PyObject *self, PyObject *args) {
     hi = (double *)malloc(sizeof(double) * 3 * cap);
     ext = (double *)malloc(sizeof(double) * cap);
     valid = (uint8_t *)malloc(cap);
-    cells = (int32_t *)malloc(sizeof(int32_t) * 6 * cap);
-    if (!lo || !hi || !ext || !valid || !cells) {
+    if (!lo || !hi || !ext || !valid) {
         status = -1;
         goto done;
     }
@@ -657,89 +772,55 @@ static PyObject *marked_flags(PyObject *self, PyObject *args) {
         status = 0;
         goto done;
     }
-    sorted = (double *)malloc(sizeof(double) * (size_t)n);
-    if (!sorted) {
-        status = -1;
-        goto done;
-    }
-    double cell = first_cell(ext, sorted, n);
-    /* the lattice: floor is monotone, so the largest upper cell is that of the largest upper coordinate; every
-     * quotient below is >= 0, where truncation is floor (and exact: the reference's floor of the same quotient) */
+    CheckFaces s = {v, f, valid, only, flags};
+    double cell;
     int64_t dims[3];
-    for (int k = 0; k < 3; k++) {
-        double q = (top[k] - origin[k]) / cell;
-        if (!(q < 1e9)) goto done; /* also NaN: a lattice this fine is never counted densely */
-        dims[k] = (int64_t)q + 1;
-    }
-    int cb = bit_length((uint64_t)dims[0]) + bit_length((uint64_t)dims[1]) + bit_length((uint64_t)dims[2]);
-    if (bit_length((uint64_t)n) + cb > 63) goto done;
-    if ((double)dims[0] * (double)dims[1] * (double)dims[2] > (double)MAX_DENSE_CELLS) goto done;
+    int feasible = first_grid_feasible(&s, lo, hi, nf, n, ext, origin, top, &cell, dims);
+    if (feasible < 0) status = -1;
+    if (feasible <= 0) goto done;
     int64_t ncells = dims[0] * dims[1] * dims[2];
-    counts = (uint16_t *)calloc((size_t)ncells, sizeof(uint16_t));
     head = (int32_t *)calloc((size_t)ncells, sizeof(int32_t)); /* 1 + first marked entry of a cell, 0: none */
     hot = (uint64_t *)calloc((size_t)(ncells / 64 + 1), sizeof(uint64_t));
     mk = (FaceData *)malloc(sizeof(FaceData) * (size_t)(k_marked > 0 ? k_marked : 1));
-    if (!counts || !head || !hot || !mk) {
+    if (!head || !hot || !mk) {
         status = -1;
         goto done;
     }
-    /* entries summed as `grid` sums them, faces per cell, pairs per cell; the marked faces' lists per cell */
-    double limit = 64.0 * (double)n + 1000000.0, total_cells = 0;
-    long long pairs = 0;
+    /* the marked faces' lists per cell */
     int64_t m = 0, t = 0, t_cap = 0;
     for (int64_t i = 0; i < nf; i++) {
-        if (!valid[i]) continue;
-        int32_t *c = cells + 6 * i;
-        double span = 1;
-        for (int k = 0; k < 3; k++) {
-            double a = (double)(int64_t)((lo[3 * i + k] - origin[k]) / cell);
-            double b = (double)(int64_t)((hi[3 * i + k] - origin[k]) / cell);
-            span *= b - a + 1;
-            c[k] = (int32_t)a;
-            c[3 + k] = (int32_t)b;
+        if (!valid[i] || !only[i]) continue;
+        int64_t c[6];
+        double span = cell_range(lo + 3 * i, hi + 3 * i, origin, cell, c);
+        int64_t need = t + (int64_t)span;
+        if (need > t_cap) {
+            t_cap = 2 * need + 64;
+            int32_t *nn = (int32_t *)realloc(next, sizeof(int32_t) * (size_t)t_cap);
+            if (nn) next = nn;
+            int32_t *nw = (int32_t *)realloc(who, sizeof(int32_t) * (size_t)t_cap);
+            if (nw) who = nw;
+            if (!nn || !nw) {
+                status = -1;
+                goto done;
+            }
         }
-        total_cells += span;
-        if (total_cells > limit) goto done;
+        FaceData *d = mk + m;
+        face_data(v, f, i, lo, hi, d);
+        for (int k = 0; k < 3; k++) {
+            d->c0[k] = c[k];
+            d->c1[k] = c[3 + k];
+        }
         for (int64_t x = c[0]; x <= c[3]; x++)
             for (int64_t y = c[1]; y <= c[4]; y++)
                 for (int64_t z = c[2]; z <= c[5]; z++) {
-                    uint16_t *cnt = counts + (x * dims[1] + y) * dims[2] + z;
-                    if (*cnt == UINT16_MAX) goto done;
-                    pairs += *cnt;
-                    (*cnt)++;
+                    int64_t at = (x * dims[1] + y) * dims[2] + z;
+                    int32_t *h = head + at;
+                    hot[at >> 6] |= (uint64_t)1 << (at & 63);
+                    who[t] = (int32_t)m;
+                    next[t] = *h;
+                    *h = (int32_t)(++t);
                 }
-        if (pairs > MAX_CANDIDATE_PAIRS) goto done;
-        if (only[i]) {
-            int64_t need = t + (int64_t)span;
-            if (need > t_cap) {
-                t_cap = 2 * need + 64;
-                int32_t *nn = (int32_t *)realloc(next, sizeof(int32_t) * (size_t)t_cap);
-                if (nn) next = nn;
-                int32_t *nw = (int32_t *)realloc(who, sizeof(int32_t) * (size_t)t_cap);
-                if (nw) who = nw;
-                if (!nn || !nw) {
-                    status = -1;
-                    goto done;
-                }
-            }
-            FaceData *d = mk + m;
-            face_data(v, f, i, lo, hi, d);
-            for (int k = 0; k < 3; k++) {
-                d->c0[k] = c[k];
-                d->c1[k] = c[3 + k];
-            }
-            for (int64_t x = c[0]; x <= c[3]; x++)
-                for (int64_t y = c[1]; y <= c[4]; y++)
-                    for (int64_t z = c[2]; z <= c[5]; z++) {
-                        int64_t at = (x * dims[1] + y) * dims[2] + z;
-                        int32_t *h = head + at;
-                        hot[at >> 6] |= (uint64_t)1 << (at & 63);
-                        who[t] = (int32_t)m;
-                        next[t] = *h;
-                        *h = (int32_t)(++t);
-                    }
-            m++;
-        }
+        m++;
     }
     /* decided: the first cell size is feasible, the answer is the pair set */
     status = 0;
@@ -747,8 +828,9 @@ static PyObject *marked_flags(PyObject *self, PyObject *args) {
     FaceData q;
     for (int64_t i = 0; i < nf; i++) {
         if (!valid[i]) continue;
-        const int32_t *c = cells + 6 * i;
         const double *ql = lo + 3 * i, *qh = hi + 3 * i;
+        int64_t c[6];
+        cell_range(ql, qh, origin, cell, c);
         int have = 0;
         for (int64_t x = c[0]; x <= c[3]; x++)
             for (int64_t y = c[1]; y <= c[4]; y++)
@@ -784,11 +866,8 @@ done:
     free(lo);
     free(hi);
     free(ext);
-    free(sorted);
     free(valid);
-    free(counts);
     free(hot);
-    free(cells);
     free(head);
     free(next);
     free(who);
@@ -830,108 +909,6 @@ done:
 #define STAR_MARGIN 1e-6
 #define MAX_STAR 64 /* parents around one vertex that a patch takes; more: its pairs are tested */
 #define MAX_PARENT_PAIRS 64000000LL
-
-/* The faces of one check. Boxes and normals are computed where they are needed, not stored: storing them for
- * 320K faces cost more in fresh pages than computing them three times. */
-typedef struct {
-    const double *v;
-    const int64_t *f;
-    const uint8_t *valid, *only;
-    uint8_t *flags;
-} CheckFaces;
-
-/* Face i's corners (9 coordinates) and closed box (lo xyz, hi xyz), as `faces` computes them. */
-static inline void face_corners_box(const CheckFaces *s, int64_t i, double *corners, double *box) {
-    const int64_t *ids = s->f + 3 * i;
-    for (int k = 0; k < 3; k++)
-        for (int c = 0; c < 3; c++) corners[3 * k + c] = s->v[3 * ids[k] + c];
-    face_box(corners, corners + 3, corners + 6, box, box + 3);
-}
-
-/* Face i's normal (x1 - x0) x (x2 - x0) from its corners, as `faces` computes it. */
-static inline void face_normal(const double *corners, double *normal) {
-    double e1[3], e2[3];
-    sub3(corners + 3, corners, e1);
-    sub3(corners + 6, corners, e2);
-    cross3(e1, e2, normal);
-}
-
-/* pair_intersects of faces a, b (the lower first, as `faces`), when both are valid, one is marked and their closed
- * boxes overlap: flags both when it accepts. */
-static void test_pair(const CheckFaces *s, int64_t a, int64_t b) {
-    if (a > b) {
-        int64_t t = a;
-        a = b;
-        b = t;
-    }
-    if (a == b || !s->valid[a] || !s->valid[b] || !(s->only[a] || s->only[b]) || (s->flags[a] && s->flags[b]))
-        return;
-    double ta[9], tb[9], na[3], nb[3], ba[6], bb[6];
-    face_corners_box(s, a, ta, ba);
-    face_corners_box(s, b, tb, bb);
-    if (!(ba[0] <= bb[3] && bb[0] <= ba[3] && ba[1] <= bb[4] && bb[1] <= ba[4] && ba[2] <= bb[5] && bb[2] <= ba[5]))
-        return;
-    face_normal(ta, na);
-    face_normal(tb, nb);
-    if (pair_intersects(ta, tb, s->f + 3 * a, s->f + 3 * b, na, nb, ba, bb, sqrt(dot3(na, na)), sqrt(dot3(nb, nb))))
-        s->flags[a] = s->flags[b] = 1;
-}
-
-/* 1 when the reference's grid is feasible at its first cell size (`faces` then answers with the pair set), 0 when
- * that is not known here, -1 out of memory. n valid faces, ext their extents in face order, origin and top the
- * corners of their boxes (the proof is `marked`'s). */
-static int first_grid_feasible(const CheckFaces *s, int64_t nf, int64_t n, const double *ext, const double *origin,
-                               const double *top) {
-    double *sorted = (double *)malloc(sizeof(double) * (size_t)n);
-    if (!sorted) return -1;
-    double cell = first_cell(ext, sorted, n);
-    free(sorted);
-    int64_t dims[3];
-    for (int k = 0; k < 3; k++) {
-        double q = (top[k] - origin[k]) / cell;
-        if (!(q < 1e9)) return 0;
-        dims[k] = (int64_t)q + 1;
-    }
-    int cb = bit_length((uint64_t)dims[0]) + bit_length((uint64_t)dims[1]) + bit_length((uint64_t)dims[2]);
-    if (bit_length((uint64_t)n) + cb > 63) return 0;
-    if ((double)dims[0] * (double)dims[1] * (double)dims[2] > (double)MAX_DENSE_CELLS) return 0;
-    uint16_t *counts = (uint16_t *)calloc((size_t)(dims[0] * dims[1] * dims[2]), sizeof(uint16_t));
-    if (!counts) return -1;
-    double limit = 64.0 * (double)n + 1000000.0, total_cells = 0;
-    long long pairs = 0;
-    int ok = 1;
-    for (int64_t i = 0; i < nf && ok; i++) {
-        if (!s->valid[i]) continue;
-        double corners[9], b[6];
-        face_corners_box(s, i, corners, b);
-        int64_t c[6];
-        double span = 1;
-        for (int k = 0; k < 3; k++) {
-            c[k] = (int64_t)((b[k] - origin[k]) / cell);
-            c[3 + k] = (int64_t)((b[3 + k] - origin[k]) / cell);
-            span *= (double)c[3 + k] - (double)c[k] + 1;
-        }
-        total_cells += span;
-        if (total_cells > limit) {
-            ok = 0;
-            break;
-        }
-        for (int64_t x = c[0]; x <= c[3] && ok; x++)
-            for (int64_t y = c[1]; y <= c[4] && ok; y++)
-                for (int64_t z = c[2]; z <= c[5]; z++) {
-                    uint16_t *cnt = counts + (x * dims[1] + y) * dims[2] + z;
-                    if (*cnt == UINT16_MAX) {
-                        ok = 0;
-                        break;
-                    }
-                    pairs += *cnt;
-                    (*cnt)++;
-                }
-        if (pairs > MAX_CANDIDATE_PAIRS) ok = 0;
-    }
-    free(counts);
-    return ok;
-}
 
 /* A parent as the patches read it (one record, so that a patch touches a few cache lines, not its 24 faces): its
  * corners and edge midpoints, the sum of its children's normals, and a cone that holds their unit normals: every
@@ -1179,7 +1156,9 @@ static PyObject *stars_flags(PyObject *self, PyObject *args) {
         goto done;
     }
     if (!loop_runs) goto done;
-    int feasible = first_grid_feasible(&s, nf, n, ext, origin, top);
+    double fine_cell;
+    int64_t fine_dims[3];
+    int feasible = first_grid_feasible(&s, NULL, NULL, nf, n, ext, origin, top, &fine_cell, fine_dims);
     if (feasible < 0) status = -1;
     if (feasible <= 0) goto done;
     /* the parents around each vertex */
