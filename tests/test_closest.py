@@ -1,5 +1,4 @@
-"""geometry.closest: SurfaceTree gives libigl's exact answers in the caller's order, whatever the batch size;
-FitSurfaceTree (FCPW's float32 BVH, float64 closest points) gives the same distances to ~1e-7."""
+"""geometry.closest: SurfaceTree gives libigl's exact answers in the caller's order, whatever the batch size."""
 
 from __future__ import annotations
 
@@ -9,8 +8,7 @@ import trimesh
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from tetweave_codec.geometry import closest
-from tetweave_codec.geometry.closest import PAD_FROM, PARALLEL_MIN_QUERIES, FitSurfaceTree, SurfaceTree
+from tetweave_codec.geometry.closest import PAD_FROM, PARALLEL_MIN_QUERIES, SurfaceTree
 from tetweave_codec.geometry.triangles import closest_on_triangles
 
 
@@ -84,34 +82,8 @@ def test_identical_points_and_a_flat_batch(sphere):
     assert np.all(sq == sq[0]) and np.all(face == face[0]) and np.all(cp == cp[0])
 
 
-@pytest.fixture(params=["fcpw", "libigl"])
-def fit_backend(request, monkeypatch):
-    """FitSurfaceTree on FCPW (skipped where it is not installed) and on its fallback, libigl's exact tree."""
-    if request.param == "fcpw":
-        if closest.fcpw_module() is None:
-            pytest.skip("fcpw is not installed (the `fast` extra)")
-    else:
-        monkeypatch.setattr(closest, "fcpw_module", lambda: None)
-    return request.param
-
-
-@pytest.mark.parametrize("n", [1, 37, 5_000])
-def test_fit_tree_matches_the_exact_tree(sphere, n, fit_backend):
-    v, f = sphere
-    p = np.random.default_rng(n).normal(size=(n, 3)) * 1.5
-    sq, face, cp = FitSurfaceTree(v, f).query(p)
-    ref_sq, _, _ = SurfaceTree(v, f).query(p)
-    assert sq.shape == (n,) and face.shape == (n,) and cp.shape == (n, 3) and face.dtype == np.int64
-    # the BVH picks a face in float32: the closest one, or one within float32 rounding of it
-    np.testing.assert_allclose(np.sqrt(sq), np.sqrt(ref_sq), rtol=0, atol=1e-6)
-    # the point returned lies on the face returned, at the distance returned
-    cp_face, _ = closest_on_triangles(p, v[f[face]])
-    np.testing.assert_allclose(cp, cp_face, atol=1e-12)
-    np.testing.assert_allclose(((p - cp) ** 2).sum(1), sq, rtol=1e-12)
-
-
-def test_fit_tree_without_faces_is_an_error_not_a_crash(fit_backend):
-    tree = FitSurfaceTree(np.zeros((3, 3)), np.zeros((0, 3), np.int64))
+def test_a_tree_without_faces_is_an_error_not_a_crash():
+    tree = SurfaceTree(np.zeros((3, 3)), np.zeros((0, 3), np.int64))
     assert tree.query(np.zeros((0, 3)))[0].shape == (0,)
     with pytest.raises(ValueError, match="without faces"):
         tree.query(np.ones((2, 3)))

@@ -31,7 +31,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from tetweave_codec.geometry.closest import FitSurfaceTree, SurfaceTree
+from tetweave_codec.geometry.closest import SurfaceTree
 from tetweave_codec.geometry.triangles import (
     draw_surface_samples,
     face_areas,
@@ -166,23 +166,22 @@ class SurfaceTarget:
     def _tree_for(self, v_np: np.ndarray, f_np: np.ndarray) -> _MeshTree:
         """An AABB tree of the current mesh (vertices (V,3), faces (F,3)), reused while the faces stay the same.
 
-        Building the tree costs ~14 ms for a 74K-face mesh (FCPW; libigl's took 52 ms), about what the term's query
-        costs. Between re-triangulations only s and c change, so the faces often stay the same and the vertices move
-        a little along their edges: for up to TREE_REUSE_CALLS calls the closest faces are found on the mesh the tree
-        was built for and their barycentric coordinates applied to the current vertices (the linearization the term
-        makes anyway).
+        Building the tree costs ~52 ms for a 74K-face mesh (libigl, one thread). Between re-triangulations only s
+        and c change, so the faces often stay the same and the vertices move a little along their edges: for up to
+        TREE_REUSE_CALLS calls the closest faces are found on the mesh the tree was built for and their barycentric
+        coordinates applied to the current vertices (the linearization the term makes anyway).
         """
         cached = self._mesh_tree
         if cached is not None and cached.calls < TREE_REUSE_CALLS and np.array_equal(cached.tree.faces, f_np):
             cached.calls += 1
             return cached
-        self._mesh_tree = _MeshTree(FitSurfaceTree(v_np, f_np))
+        self._mesh_tree = _MeshTree(SurfaceTree(v_np, f_np))
         return self._mesh_tree
 
 
 class _MeshTree:
     """The tree of one extracted mesh (its vertices and faces in `tree`) and how many later calls reused it."""
 
-    def __init__(self, tree: FitSurfaceTree):
+    def __init__(self, tree: SurfaceTree):
         self.tree = tree
         self.calls = 0

@@ -1,12 +1,11 @@
 """Closest points on a triangle mesh: one home for the bounding-volume trees every distance query uses.
 
-`SurfaceTree` (libigl's AABB tree, float64) is exact and serves the metrics, the initialization and the fit's
-input surface. `FitSurfaceTree` serves the fit's *current* mesh, rebuilt whenever marching tets changes its faces
-(hundreds of times per encode): FCPW's float32 BVH builds 4x faster than libigl's tree (a 74K-face mesh: 13 ms
-against 52 ms, one thread) and picks the closest face; the closest point and its distance are then computed in
-float64 on that face. Float32 can pick a face whose distance is within ~1e-7 (relative) of the closest one, an
-error far below anything the fit resolves; the metrics never use it. FCPW is an optional dependency (the `fast`
-extra: it has no wheel for every platform and Python); without it `FitSurfaceTree` is libigl's exact tree.
+`SurfaceTree` (libigl's AABB tree, float64) is exact and serves every query: the metrics, the initialization, the
+fit's input surface and the fit's *current* mesh (rebuilt whenever marching tets changes its faces). The fit once
+used FCPW's float32 BVH for that last tree (4x faster to build), but which face it picks at near ties depends on the
+CPU it runs on: the same encode wrote different files on two x86-64 machines (4 of the 7 pinned cases of
+tests/test_encode_hashes.py), and the bytes depended on whether the optional package was installed. The files
+depend on this tree's answers alone, exact and the same on every machine.
 
 `SurfaceTree(vertices (V,3), faces (F,3))` builds the tree once; `query(points (n,3))` returns the squared distance
 (n,), the closest face (n,) int64 and the closest point (n,3) of each query point, exactly as
@@ -28,7 +27,6 @@ from __future__ import annotations
 import numpy as np
 
 from tetweave_codec.formats.quantize import morton_keys
-from tetweave_codec.geometry.triangles import closest_on_triangles
 
 # Batches below this many points run on one thread in libigl (igl::parallel_for's min_parallel in AABB).
 PARALLEL_MIN_QUERIES = 10_001
@@ -70,61 +68,6 @@ class SurfaceTree:
         out_face[order] = np.asarray(face, dtype=np.int64).reshape(-1)[:n]
         out_closest[order] = np.asarray(closest).reshape(-1, 3)[:n]
         return out_sq, out_face, out_closest
-
-
-class FitSurfaceTree:
-    """A float32 BVH (FCPW) of a triangle mesh, vertices (V,3) and faces (F,3) kept as given (float64, int64).
-
-    `query` answers like `SurfaceTree.query`: squared distance (n,), closest face (n,) int64 and closest point (n,3),
-    the last two computed in float64 on the face the BVH found (see the module docstring).
-    """
-
-    def __init__(self, vertices: np.ndarray, faces: np.ndarray):
-        self.vertices = np.ascontiguousarray(vertices, dtype=np.float64)
-        self.faces = np.ascontiguousarray(faces, dtype=np.int64).reshape(-1, 3)
-        fcpw = self._fcpw = fcpw_module()
-        self._exact = SurfaceTree(self.vertices, self.faces) if fcpw is None else None
-        if fcpw is None:
-            return
-        self._scene = fcpw.scene_3D()
-        if len(self.faces):
-            self._scene.set_object_count(1)
-            self._scene.set_object_vertices(np.asfortranarray(self.vertices, dtype=np.float32), 0)
-            self._scene.set_object_triangles(np.asfortranarray(self.faces, dtype=np.int32), 0)
-            # the centre split of the longest axis: 2.3x faster to build than the surface-area heuristics, whose
-            # faster queries do not pay for it at a few thousand queries per tree
-            self._scene.build(fcpw.aggregate_type.bvh_longest_axis_center, True)
-
-    def query(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Squared distance (n,), closest face (n,) int64 and closest point (n,3) on the mesh of each of points
-        (n,3), in the order given. ValueError when the mesh has no faces."""
-        if self._exact is not None:
-            return self._exact.query(points)
-        p = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
-        n = len(p)
-        if n == 0:
-            return np.zeros(0), np.zeros(0, dtype=np.int64), np.zeros((0, 3))
-        if len(self.faces) == 0:
-            raise ValueError("cannot find closest points on a mesh without faces")
-        found = self._fcpw.interaction_3D_list()
-        self._scene.find_closest_points(np.asfortranarray(p, dtype=np.float32), np.full(n, np.inf, np.float32), found)
-        face = np.fromiter((i.primitive_index for i in found), dtype=np.int64, count=n)
-        if face.min() < 0 or face.max() >= len(self.faces):  # FCPW found nothing (NaN, infinity): the exact tree
-            return SurfaceTree(self.vertices, self.faces).query(p)
-        closest, _ = closest_on_triangles(p, self.vertices[self.faces[face]])
-        return ((p - closest) ** 2).sum(1), face, closest
-
-
-def fcpw_module():
-    """The `fcpw` module, or None when it is not installed (or too old to have the API used here)."""
-    try:
-        import fcpw
-    except ImportError:
-        return None
-    needed = ("scene_3D", "interaction_3D_list", "aggregate_type")
-    if not all(hasattr(fcpw, name) for name in needed) or not hasattr(fcpw.aggregate_type, "bvh_longest_axis_center"):
-        return None
-    return fcpw
 
 
 def _spatial_order(points: np.ndarray) -> np.ndarray:
