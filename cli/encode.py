@@ -336,23 +336,18 @@ def _encode_one(mesh: Path, output: Path | None, opts, quiet: bool) -> None:
 
 
 def _context_line(result, input_faces: int) -> str:
-    """The file in context: the decoded faces against the input's, and plain Draco of the input at the same Chamfer
-    distance (measured with the summary's own metric, `bench.anchor`), saying plainly when Draco is smaller."""
+    """The file in context: the decoded faces against the input's, then plain Draco and fast-simplification + Draco
+    of the input at the same Chamfer distance (measured with the summary's own metric, `bench.anchor`), saying
+    plainly when either is smaller."""
     st = result.stats
     faces = f"decoded faces {st['faces']:,} = {st['faces'] / max(input_faces, 1):.2f}x the input's {input_faces:,}"
     if st["chamfer"] is None or result.prepared is None or not st["faces"]:
         return faces
     try:
-        from tetweave_codec.bench.anchor import draco_at_chamfer
-    except ImportError:  # DracoPy is a dependency; a broken install only loses the comparison
+        from tetweave_codec.bench.anchor import classical_context
+    except ImportError:  # DracoPy and fast-simplification are dependencies; a broken install only loses the lines
         return faces
-    prepared = result.prepared
     from tetweave_codec.packing import SUMMARY_CHAMFER_SAMPLES
 
-    match = draco_at_chamfer(
-        prepared.normalized,
-        prepared.faces,
-        st["chamfer"],
-        lambda v, f: prepared.normalized_chamfer(v, f, SUMMARY_CHAMFER_SAMPLES),
-    )
-    return f"{faces}; {match.describe(st['bytes'])}"
+    context = classical_context(result.prepared, st["bytes"], st["chamfer"], st["faces"], SUMMARY_CHAMFER_SAMPLES)
+    return "\n".join([f"{faces}; {context['lines'][0]}", context["lines"][1]])

@@ -1,4 +1,5 @@
-"""Plain Draco at a matched Chamfer distance (tetweave_codec/bench/anchor.py): the encoder's context line."""
+"""Plain Draco and fast-simplification + Draco at a matched Chamfer distance (tetweave_codec/bench/anchor.py): the
+encoder's context lines."""
 
 import numpy as np
 import pytest
@@ -6,8 +7,20 @@ import trimesh
 
 pytest.importorskip("DracoPy")
 
-from tetweave_codec.bench.anchor import MAX_BITS, MIN_BITS, draco_at_chamfer  # noqa: E402
+from tetweave_codec.bench.anchor import (  # noqa: E402
+    DECIMATE_BRACKET_RATIO,
+    MAX_BITS,
+    MAX_DECIMATE_TRIES,
+    MIN_BITS,
+    MIN_KEEP,
+    DracoMatch,
+    decimate_bits,
+    decimate_draco_at_chamfer,
+    draco_at_chamfer,
+)
+from tetweave_codec.bench.baselines import decimate, draco_decode, draco_encode  # noqa: E402
 from tetweave_codec.metrics.fidelity import chamfer_distance  # noqa: E402
+from tetweave_codec.metrics.rate_distortion import bytes_at, pareto_front  # noqa: E402
 
 SAMPLES = 20_000
 
@@ -49,6 +62,42 @@ def test_error_finer_than_max_bits_is_out_of_reach(sphere):
 
 
 def _draco_mesh(v, f, bits):
-    from tetweave_codec.bench.baselines import draco_decode, draco_encode
-
     return draco_decode(draco_encode(v, f, bits, 7))
+
+
+def test_decimation_search_brackets_the_target_and_matches_a_dense_sweep(sphere):
+    """The bracket search lands where a dense sweep of 40 fractions (what `tetweave bench` reads a front from) puts
+    fast-simplification + Draco at the target, within 10 %, from a few decimations."""
+    v, f, distance = sphere
+    target = distance(*_draco_mesh(*decimate(v, f, 0.07), 12))
+    match = decimate_draco_at_chamfer(v, f, target, distance, bits=12, start_faces=len(f) // 40)
+    assert match.bound is None and match.bytes is not None and match.bits == 12
+    assert len(match.settings) <= MAX_DECIMATE_TRIES
+    over = [k for k, s in match.settings.items() if s[2] > target]
+    within = [k for k, s in match.settings.items() if s[2] <= target]
+    assert over and within and min(within) / max(over) <= DECIMATE_BRACKET_RATIO
+    dense = []
+    for keep in np.geomspace(0.01, 0.5, 40):
+        data = draco_encode(*decimate(v, f, keep), 12, 7)
+        dense.append((distance(*draco_decode(data)), len(data)))
+    expected = bytes_at(pareto_front(dense), target)
+    assert abs(match.bytes / expected - 1) < 0.10, (match.bytes, expected)
+    assert "fast-simplification + Draco (12 bits)" in match.describe(int(match.bytes))
+    assert "LARGER" in match.describe(int(match.bytes * 2)) and "smaller" in match.describe(int(match.bytes / 2))
+
+
+def test_decimation_search_outside_its_range_says_so(sphere):
+    v, f, distance = sphere
+    coarse = decimate_draco_at_chamfer(v, f, 1.0, distance, bits=12, start_faces=200)
+    assert coarse.bytes is None and coarse.bound == "below" and min(coarse.settings) == MIN_KEEP
+    fine = decimate_draco_at_chamfer(v, f, 1e-12, distance, bits=12, start_faces=200)
+    assert fine.bytes is None and fine.bound == "above" and max(fine.settings) == 1.0
+    assert "no fraction" in fine.describe(10)
+
+
+def test_decimation_bits_leave_half_the_error_to_the_decimation():
+    settings = {8: (100, 4e-3), 12: (300, 2e-4), 10: (200, 9e-4), 11: (250, 4.5e-4)}
+    assert decimate_bits(DracoMatch(1e-3, 210.0, None, settings)) == 11  # 10 is within, not within half
+    assert decimate_bits(DracoMatch(5e-4, 260.0, None, settings)) == 12  # 11 is within, not within half
+    assert decimate_bits(DracoMatch(1e-2, None, "below", {8: (100, 4e-3)})) == 8  # within half at MIN_BITS
+    assert decimate_bits(DracoMatch(1e-5, None, "above", settings)) == MAX_BITS

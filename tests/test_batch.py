@@ -295,6 +295,8 @@ def test_batch_records_failures_and_goes_on(batch):
         data = (out / key).read_bytes()
         assert rec["bytes"] == len(data) and rec["points"] > 0 and rec["chamfer"] > 0 and rec["seconds"] > 0
         assert len(rec["sha256"]) == 64 and rec["input_bytes"] == Path(rec["input"]).stat().st_size
+        for context in ("draco_bytes", "decimate_draco_bytes"):  # the summary's classical context, or null
+            assert rec[context] is None or rec[context] > 0, (key, context, rec[context])
         v, f = decode(data)
         assert len(f) > 0 and np.isfinite(v).all()
     assert not [p for p in out.rglob("*") if p.name.startswith(".")]  # no temporary files left
@@ -310,6 +312,12 @@ def test_rerun_skips_and_force_redoes_with_the_same_bytes(batch):
     assert again.exit_code == 1  # the broken file is tried again, and fails again
     new = records(out)[5:]
     assert sorted(r["status"] for r in new) == ["failed"] + ["skipped"] * 4
+    first = {r["output"]: r for r in records(out)[:5]}
+    for r in new:  # a skipped file keeps what its first run measured
+        if r["status"] == "skipped":
+            assert [r[k] for k in ("chamfer", "draco_bytes")] == [
+                first[r["output"]][k] for k in ("chamfer", "draco_bytes")
+            ]
     assert {k: (out / k).stat().st_mtime_ns for k in before} == stamps  # nothing rewritten
     assert rerun_s < first_s
     # --force: every file runs again

@@ -244,6 +244,7 @@ def test_cli_encode_then_decode(tmp_path):
     assert res.exit_code == 0, res.output
     assert "Chamfer" in res.output
     assert f"the input's {len(f):,}" in res.output and "plain Draco of the input" in res.output
+    assert "fast-simplification + Draco" in res.output
     tw = tmp_path / "torus.tw"
     assert tw.exists()
     out = tmp_path / "torus_decoded.obj"

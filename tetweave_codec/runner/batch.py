@@ -21,7 +21,7 @@ from tetweave_codec.runner.manifest import FAILED, OK, SKIPPED, Manifest, canoni
 from tetweave_codec.runner.work import Task
 
 # Result fields that reach the record unchanged (the rest, e.g. the output bytes, stay with the driver).
-_RESULT_FIELDS = ("bytes", "points", "chamfer", "seconds", "error", "attempts")
+_RESULT_FIELDS = ("bytes", "points", "chamfer", "draco_bytes", "decimate_draco_bytes", "seconds", "error", "attempts")
 
 
 @dataclass
@@ -105,7 +105,7 @@ def run_batch(
             output = Path(task.output)
             before = None if force or manifest is None else manifest.done_before(task.key, sha, task.options, output)
             if before is not None:
-                kept = {k: before.get(k) for k in ("bytes", "points", "chamfer")}
+                kept = {k: before.get(k) for k in ("bytes", "points", "chamfer", "draco_bytes", "decimate_draco_bytes")}
                 emit(new_record(**base, **kept, status=SKIPPED, seconds=0.0, attempts=0))
                 continue
             facts[task.key] = base

@@ -3,7 +3,9 @@
 A record (see `RECORD_FIELDS`): ``input`` (path), ``output`` (path relative to DIR: the key that identifies an
 input across runs), ``sha256`` of the input's bytes, ``options`` (everything that decides the output bytes),
 ``status`` (``ok`` / ``failed`` / ``skipped``), ``input_bytes``, ``bytes`` (output size), ``points`` (points
-stored), ``chamfer`` (decoded mesh to input, normalized frame; null when not measured), ``seconds`` (the file's
+stored), ``chamfer`` (decoded mesh to input, normalized frame; null when not measured), ``draco_bytes`` and
+``decimate_draco_bytes`` (plain Draco and fast-simplification + Draco of the input at that Chamfer distance, the
+encoder summary's context, `bench.anchor.classical_context`; null where no setting brackets it), ``seconds`` (the file's
 wall time in its worker), ``error`` (the one-line message when failed), ``attempts`` (0: not run, i.e. skipped
 or unreadable; 1; 2 after a local worker died; Ray retries a dead worker itself and reports 1), ``time`` (UTC,
 when recorded).
@@ -34,6 +36,8 @@ RECORD_FIELDS = (
     "bytes",
     "points",
     "chamfer",
+    "draco_bytes",
+    "decimate_draco_bytes",
     "seconds",
     "error",
     "attempts",

@@ -55,8 +55,10 @@ def encode_file(task: Task) -> dict:
     """Fit and pack one mesh with `EncodeOptions(**task.options)`; sets torch's threads to the options' first.
 
     Returns {"status": "ok", "data": .tw bytes, "bytes", "points" (stored), "points_target" (grid points of the
-    fit), "chamfer", "device", "seconds", "mesh_sha256" (`mesh_sha256` of the loaded mesh)} or a failed result
-    with the one-line error (and mesh_sha256 when the mesh loaded). Same task, same bytes, in any process.
+    fit), "chamfer", "draco_bytes", "decimate_draco_bytes" (the summary's classical context:
+    `bench.anchor.classical_context`), "device", "seconds", "mesh_sha256" (`mesh_sha256` of the loaded mesh)} or a
+    failed result with the one-line error (and mesh_sha256 when the mesh loaded). Same task, same bytes, in any
+    process.
     """
     t0 = time.perf_counter()
     mesh_key: dict = {}
@@ -73,6 +75,7 @@ def encode_file(task: Task) -> dict:
         if options.threads:
             torch.set_num_threads(options.threads)
         result = encode(vertices, faces, options=options)
+        context = _classical_record(result)
     except Exception as exc:  # bad input, unreachable target, a bug: a failed record, never a stopped batch
         return {**failed(exc, t0), **mesh_key}
     st = result.stats
@@ -83,10 +86,25 @@ def encode_file(task: Task) -> dict:
         "points": st["points_kept"],
         "points_target": st["points_target"],
         "chamfer": st["chamfer"],
+        **context,
         "device": st["device"],
         "seconds": time.perf_counter() - t0,
         **mesh_key,
     }
+
+
+def _classical_record(result) -> dict:
+    """The encoder summary's classical context for a manifest record: {"draco_bytes", "decimate_draco_bytes"}
+    (null where not measured)."""
+    st = result.stats
+    if st["chamfer"] is None or result.prepared is None or not st["faces"]:
+        return {"draco_bytes": None, "decimate_draco_bytes": None}
+    from tetweave_codec.bench.anchor import classical_context
+    from tetweave_codec.packing import SUMMARY_CHAMFER_SAMPLES
+
+    return classical_context(result.prepared, st["bytes"], st["chamfer"], st["faces"], SUMMARY_CHAMFER_SAMPLES)[
+        "record"
+    ]
 
 
 def decode_file(task: Task) -> dict:
