@@ -79,9 +79,20 @@ def backend_name(flags: int) -> str:
     return "qhull" if flags & FLAG_QHULL else "tetgen"
 
 
+# The transform a file may store (formats/README.md, "Validation"): what a real encode writes (the input's
+# half-extent / 0.9 and its bounding box's centre) with room to spare. A scale beyond these ranges makes the
+# self-intersection check's products under- or overflow; an offset beyond MAX_OFFSET_RATIO x scale leaves the
+# transform's rounding (an ulp of the offset) above 2^-28 x scale, within 2^-12 of the finest grid cell
+# (2.4 x 2^-16 x scale), where it would move decoded vertices through each other.
+MIN_SCALE = 2.0**-64
+MAX_SCALE = 2.0**64
+MAX_OFFSET_RATIO = 2.0**24
+
+
 def _transform_problem(scale: float, offset: np.ndarray, bound: float) -> str | None:
-    """Why scale / offset cannot be stored (None if they can): scale finite and > 0, offset 3 finite numbers, and
-    ``bound * scale + |offset_i|`` finite in float64, so that every decoded vertex is finite in the input's frame."""
+    """Why scale / offset cannot be stored (None if they can): scale finite and > 0, offset 3 finite numbers,
+    ``bound * scale + |offset_i|`` finite in float64, so that every decoded vertex is finite in the input's frame,
+    scale in [MIN_SCALE, MAX_SCALE] and every |offset_i| <= MAX_OFFSET_RATIO * scale."""
     if not (np.isfinite(scale) and scale > 0):
         return f"scale {scale} (must be finite and > 0)"
     if offset.shape != (3,) or not np.isfinite(offset).all():
@@ -90,6 +101,10 @@ def _transform_problem(scale: float, offset: np.ndarray, bound: float) -> str | 
         reach = bound * scale + np.abs(offset)
     if not np.isfinite(reach).all():
         return f"scale {scale:g} and offset take the points beyond the float64 range"
+    if not MIN_SCALE <= scale <= MAX_SCALE:
+        return f"scale {scale:g} outside [2^-64, 2^64] (no encoder writes it)"
+    if (np.abs(offset) > MAX_OFFSET_RATIO * scale).any():
+        return f"offset beyond 2^24 x scale {scale:g} (the transform would round away the decoded surface's detail)"
     return None
 
 

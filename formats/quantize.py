@@ -33,6 +33,12 @@ POSITION_BITS_MAX = 16
 S_SYMBOL_LIMIT = 2**20  # s symbols lie in [-2**20, 2**20 - 1]; magnitude (k or -k-1) < 2**20
 C_SYMBOL_LIMIT = 2**15  # c symbols lie in [-2**15, 2**15]
 MIN_STEP = 2.0**-126  # steps are normal float32 numbers > 0
+# The largest steps a version-2 file may store (formats/README.md, "Validation"); a real encode writes s steps
+# below 0.03 and c steps below 3 (config.default_quantization at 64 points, x 2.8 for rate control's coarser
+# steps). A c step of 16 keeps a coefficient of symbol +-1 far from saturating tanh (16 x Y_0 = 4.5); a c step
+# near float32's largest makes every nonzero coefficient saturate it, which puts decoded vertices on the points.
+MAX_S_STEP = 1.0
+MAX_C_STEP = 16.0
 # Fractional position grids (`fractional_grid`): scales in [MIN_GRID_SCALE, 1], effective bits in steps of
 # 1 / FRACTIONAL_BITS_DENOMINATOR.
 MIN_GRID_SCALE = 0.5
@@ -252,6 +258,14 @@ def stored_step(step) -> float:
     if not (np.isfinite(st) and st >= MIN_STEP):
         raise ValueError(f"steps must be finite and >= {MIN_STEP:g} (as float32), got {step}")
     return st
+
+
+def step_problem(name: str, step: float, largest: float) -> str | None:
+    """Why a stored s or c step (float32 widened) is invalid in a version-2 file, or None: it must be finite, at
+    least MIN_STEP and at most `largest` (MAX_S_STEP or MAX_C_STEP)."""
+    if not (np.isfinite(step) and MIN_STEP <= step <= largest):
+        return f"{name} {step:g} (must be finite, in [2^-126, {largest:g}])"
+    return None
 
 
 def _check_step(step, name: str) -> float:

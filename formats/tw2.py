@@ -217,6 +217,8 @@ def pack_v2(f: TetWeaveFileV2) -> bytes:
     band_steps = [Q.stored_step(x) for x in np.asarray(f.c_band_steps, dtype=np.float64).reshape(-1)]
     if len(band_steps) != degree + 1:
         raise ValueError(f"need {degree + 1} c band steps for SH degree {degree}, got {len(band_steps)}")
+    for problem in _step_problems(s_step, band_steps):
+        raise ValueError(problem)
     scale, offset, flags = checked_fields(f.scale, f.offset, f.flags, KNOWN_FLAGS_V2, Q.GRID_BOUND)
     if subdivision_levels(flags) > MAX_SUBDIVISION:
         raise ValueError(f"subdivision levels must be 0-{MAX_SUBDIVISION}, got {subdivision_levels(flags)}")
@@ -238,6 +240,13 @@ def pack_v2(f: TetWeaveFileV2) -> bytes:
     header += struct.pack(f"<{degree + 1}f", *band_steps)
     header += struct.pack(f"<{len(sections)}I", *(len(x) for x in sections))
     return seal(header + b"".join(sections))
+
+
+def _step_problems(s_step: float, band_steps) -> list[str]:
+    """Why the stored steps cannot be in a file (empty when they can): `quantize.step_problem` of each."""
+    found = [Q.step_problem("s step", s_step, Q.MAX_S_STEP)]
+    found += [Q.step_problem("c step", x, Q.MAX_C_STEP) for x in band_steps]
+    return [x for x in found if x]
 
 
 # -----------------------------------------------------------------------------------------------------------
@@ -270,9 +279,8 @@ def unpack_v2(buf: bytes) -> TetWeaveFileV2:
     if n > MAX_POINTS:
         raise ContainerError(f"invalid .tw header: {n} points (a version-2 file holds at most {MAX_POINTS})")
     scale, offset = read_transform(scale, (ox, oy, oz), Q.GRID_BOUND)
-    for name, st in (("s step", s_step), *(("c step", x) for x in band_steps)):
-        if not (np.isfinite(st) and st >= Q.MIN_STEP):
-            raise ContainerError(f"invalid .tw header: {name} {st} (must be a finite, normal float32 > 0)")
+    for problem in _step_problems(s_step, band_steps):
+        raise ContainerError(f"invalid .tw header: {problem}")
     q = num_coeffs(degree)
     if n == 0 and any(section_sizes):
         raise ContainerError("invalid .tw header: sections for zero points")

@@ -228,7 +228,7 @@ def v2_files(draw):
     perm = rng.permutation(n)  # pack_v2 sorts
     steps = tuple(float(np.float32(x)) for x in rng.uniform(1e-3, 1, degree + 1))
     f = TetWeaveFileV2(
-        cells[perm], s_sym[perm], c_sym[perm], bits, float(np.float32(draw(st.floats(1e-6, 10)))), steps,
+        cells[perm], s_sym[perm], c_sym[perm], bits, float(np.float32(draw(st.floats(1e-6, Q.MAX_S_STEP)))), steps,
         degree, draw(st.floats(1e-6, 1e6)), rng.normal(size=3), draw(st.integers(0, 7)),
         creases=draw(st.booleans()),
     )  # fmt: skip
@@ -552,6 +552,16 @@ def test_n_above_the_format_limit_is_rejected_before_decoding():
         (49, "<f", 0.0, "s step"),
         (49, "<f", float("nan"), "s step"),
         (53, "<f", -1.0, "c step"),
+        # values no encoder writes (formats/README.md, "Validation"): steps that saturate tanh or dwarf the grid,
+        # a scale whose products under- or overflow, an offset whose ulp is coarser than the grid's detail
+        (49, "<f", 1.0000001, "s step"),
+        (49, "<f", 3.4e38, "s step"),
+        (53, "<f", 16.000002, "c step"),
+        (53, "<f", 1e38, "c step"),
+        (57, "<f", 3.4e38, "c step"),  # band 1
+        (17, "<d", 2.0**-65, "scale"),
+        (17, "<d", 2.0**65, "scale"),
+        (25, "<d", 2.0**26, "offset beyond"),  # random_file's scale 3: 2^24 x 3 is the largest offset
     ],
 )
 def test_semantic_checks_behind_a_valid_checksum(offset, fmt, value, message):
@@ -559,6 +569,24 @@ def test_semantic_checks_behind_a_valid_checksum(offset, fmt, value, message):
     struct.pack_into(fmt, data, offset, value)
     with pytest.raises(ContainerError, match=message):
         tw.unpack(reseal(data))
+
+
+def test_largest_steps_scale_and_offset_are_valid():
+    """The ends of the stored ranges are in them: what a writer can store, a reader takes."""
+    f = random_file(n=20, degree=1, s_step=Q.MAX_S_STEP, c_step=Q.MAX_C_STEP)
+    g = tw.unpack(pack_v2(f))
+    assert g.s_step == Q.MAX_S_STEP and g.c_band_steps == (Q.MAX_C_STEP,) * 2
+    for scale, offset in ((2.0**-64, 2.0**-40), (2.0**64, -(2.0**88))):
+        h = tw.unpack(pack_v2(TetWeaveFileV2(**{**_fields(f), "scale": scale, "offset": np.array([offset, 0, 0])})))
+        assert h.scale == scale and h.offset[0] == offset
+    with pytest.raises(ValueError, match="c step"):
+        pack_v2(random_file(n=20, degree=1, c_step=17.0))
+
+
+def _fields(f) -> dict:
+    fields = dict(f.__dict__)
+    fields.pop("sizes", None)
+    return fields
 
 
 def test_checksum_trailing_bytes_and_version_dispatch():

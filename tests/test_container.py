@@ -73,10 +73,10 @@ def test_round_trip_is_exact(degree, flags):
 def test_round_trip_preserves_special_float16_values():
     vals = np.array([0.0, -0.0, 6.1e-5, 5.96e-8, -65504.0, 65504.0, 1 / 3], dtype=np.float16)
     n = len(vals)
-    f = TetWeaveFile(np.stack([vals] * 3, 1), vals.copy(), vals[:, None].copy(), 0, 1e-300, np.zeros(3))
+    f = TetWeaveFile(np.stack([vals] * 3, 1), vals.copy(), vals[:, None].copy(), 0, 2.0**-64, np.zeros(3))
     g = unpack(pack(f))
     assert g.points.tobytes() == f.points.tobytes() and g.s.tobytes() == f.s.tobytes()  # incl. the sign of -0
-    assert g.scale == 1e-300 and g.num_points == n
+    assert g.scale == 2.0**-64 and g.num_points == n  # the smallest scale a file may store
 
 
 def test_empty_point_set_round_trips():
@@ -116,6 +116,9 @@ def test_pack_is_deterministic_and_casts_other_floats():
         (dict(sh_degree=4), "SH degree"),
         (dict(scale=0.0), "scale"),
         (dict(scale=1e305), "float64 range"),  # 65504 (largest float16) x 1e305 overflows
+        (dict(scale=2.0**-65), r"outside \[2\^-64, 2\^64\]"),
+        (dict(scale=2.0**65), r"outside \[2\^-64, 2\^64\]"),
+        (dict(scale=1.0, offset=np.array([0.0, 2.0**24 + 2, 0.0])), "beyond 2\\^24"),
         (dict(scale=float("nan")), "scale"),
         (dict(offset=np.array([0, np.inf, 0])), "offset"),
         (dict(flags=2), "flags"),
@@ -203,6 +206,8 @@ def test_other_file_types_are_not_tw():
         (24, "<d", -1.0, "scale"),
         (24, "<d", float("inf"), "scale"),
         (24, "<d", 1e305, "float64 range"),
+        (24, "<d", 1e-30, "outside"),
+        (32, "<d", 1e10, "beyond 2"),
         (32, "<d", float("nan"), "offset"),
         (16, "<I", 21, "payload"),
     ],
