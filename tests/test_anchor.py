@@ -66,32 +66,35 @@ def _draco_mesh(v, f, bits):
 
 
 def test_decimation_search_brackets_the_target_and_matches_a_dense_sweep(sphere):
-    """The bracket search lands where a dense sweep of 40 fractions (what `tetweave bench` reads a front from) puts
-    fast-simplification + Draco at the target, within 10 %, from a few decimations."""
+    """The bracket search lands where a dense sweep of 40 fractions at the same depths (what `tetweave bench`
+    reads a front from) puts fast-simplification + Draco at the target, within 10 %, from a few decimations."""
     v, f, distance = sphere
     target = distance(*_draco_mesh(*decimate(v, f, 0.07), 12))
     match = decimate_draco_at_chamfer(v, f, target, distance, bits=12, start_faces=len(f) // 40)
-    assert match.bound is None and match.bytes is not None and match.bits == 12
-    assert len(match.settings) <= MAX_DECIMATE_TRIES
-    over = [k for k, s in match.settings.items() if s[2] > target]
-    within = [k for k, s in match.settings.items() if s[2] <= target]
+    assert match.bound is None and match.bytes is not None and match.bits in (10, 11, 12, 13)
+    keeps = {k for k, _ in match.settings}
+    assert len(keeps) <= 4 * MAX_DECIMATE_TRIES and {b for _, b in match.settings} == {10, 11, 12, 13}
+    over = [k for (k, b), s in match.settings.items() if b == 12 and s[2] > target]
+    within = [k for (k, b), s in match.settings.items() if b == 12 and s[2] <= target]
     assert over and within and min(within) / max(over) <= DECIMATE_BRACKET_RATIO
     dense = []
     for keep in np.geomspace(0.01, 0.5, 40):
-        data = draco_encode(*decimate(v, f, keep), 12, 7)
-        dense.append((distance(*draco_decode(data)), len(data)))
+        vd, fd = decimate(v, f, keep)
+        for bits in (10, 11, 12, 13):
+            data = draco_encode(vd, fd, bits, 7)
+            dense.append((distance(*draco_decode(data)), len(data)))
     expected = bytes_at(pareto_front(dense), target)
     assert abs(match.bytes / expected - 1) < 0.10, (match.bytes, expected)
-    assert "fast-simplification + Draco (12 bits)" in match.describe(int(match.bytes))
+    assert f"fast-simplification + Draco ({match.bits} bits)" in match.describe(int(match.bytes))
     assert "LARGER" in match.describe(int(match.bytes * 2)) and "smaller" in match.describe(int(match.bytes / 2))
 
 
 def test_decimation_search_outside_its_range_says_so(sphere):
     v, f, distance = sphere
     coarse = decimate_draco_at_chamfer(v, f, 1.0, distance, bits=12, start_faces=200)
-    assert coarse.bytes is None and coarse.bound == "below" and min(coarse.settings) == MIN_KEEP
+    assert coarse.bytes is None and coarse.bound == "below" and min(k for k, _ in coarse.settings) == MIN_KEEP
     fine = decimate_draco_at_chamfer(v, f, 1e-12, distance, bits=12, start_faces=200)
-    assert fine.bytes is None and fine.bound == "above" and max(fine.settings) == 1.0
+    assert fine.bytes is None and fine.bound == "above" and max(k for k, _ in fine.settings) == 1.0
     assert "no fraction" in fine.describe(10)
 
 
