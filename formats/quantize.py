@@ -35,10 +35,11 @@ C_SYMBOL_LIMIT = 2**15  # c symbols lie in [-2**15, 2**15]
 MIN_STEP = 2.0**-126  # steps are normal float32 numbers > 0
 # The largest steps a version-2 file may store (formats/README.md, "Validation"); a real encode writes s steps
 # below 0.03 and c steps below 3 (config.default_quantization at 64 points, x 2.8 for rate control's coarser
-# steps). A c step of 16 keeps a coefficient of symbol +-1 far from saturating tanh (16 x Y_0 = 4.5); a c step
+# steps). A c step of 4 keeps coefficients of symbol +-1 from saturating tanh at SH degree 1 (4 x (Y_0 + |Y_1|) <=
+# 4.5, 1 + tanh >= 2.5e-4; a step of 16 already put vertices within 1e-15 of the points); a c step
 # near float32's largest makes every nonzero coefficient saturate it, which puts decoded vertices on the points.
 MAX_S_STEP = 1.0
-MAX_C_STEP = 16.0
+MAX_C_STEP = 4.0
 # Fractional position grids (`fractional_grid`): scales in [MIN_GRID_SCALE, 1], effective bits in steps of
 # 1 / FRACTIONAL_BITS_DENOMINATOR.
 MIN_GRID_SCALE = 0.5

@@ -6,6 +6,7 @@ from __future__ import annotations
 import itertools
 
 import numpy as np
+import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -87,3 +88,38 @@ def near_degenerate_soups(draw):
 def test_filter_hides_nothing(case):
     v, f = case
     assert pairs_of(v, f) == brute_force(v, f)
+
+
+@st.composite
+def crease_corners(draw):
+    """Two planes meeting at a crease, faces on both, corners nudged by ulps at a magnitude of 300 (the
+    issue's CAD part): faces on neighbouring planes, corners on other faces' planes, coplanar neighbours."""
+    rng = np.random.default_rng(draw(st.integers(0, 2**32 - 1)))
+    n = 10
+    u = rng.integers(0, 4, size=n) * 0.25
+    w = rng.integers(-3, 4, size=n) * 0.25
+    on_b = rng.random(n) < 0.5  # plane z = 0 (w along y) or plane y = 0 (w along z): a 90-degree crease at x
+    v = np.stack([u, np.where(on_b, 0.0, w), np.where(on_b, w, 0.0)], axis=1) + 300.0
+    v += rng.integers(-1, 2, size=(n, 3)) * (rng.random((n, 3)) < 0.3) * np.spacing(300.0)
+    faces = np.array([rng.choice(n, 3, replace=False) for _ in range(draw(st.integers(2, 8)))])
+    return v, faces
+
+
+@pytest.mark.parametrize("native", [True, False], ids=["native", "reference"])
+@given(case=st.one_of(near_degenerate_soups(), crease_corners()))
+@settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+def test_the_decoders_predicate_flags_every_exact_contact(native, case):
+    """geometry/intersections.py is conservative: every face in a pair the exact check finds is flagged."""
+    from tetweave_codec.geometry import intersections as I
+
+    if native and I._intersect_native is None:
+        pytest.skip("C extension not built")
+    v, f = case
+    saved = I.NATIVE
+    try:
+        I.NATIVE = native
+        flags = I.self_intersecting_faces(v, f)
+    finally:
+        I.NATIVE = saved
+    exact = X.check(v, f).pairs
+    assert flags[exact.reshape(-1)].all()

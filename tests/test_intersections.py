@@ -120,28 +120,48 @@ def test_coplanar_fold_around_a_shared_vertex(path):
     assert not I.self_intersecting_faces(v, np.array([[0, 1, 2], [0, 5, 6]])).any()
 
 
-def test_a_segment_in_the_plane_touches(path):
-    """An edge lying in another face's plane (within 1e-12 of it, here through rounding) does not cross it."""
+def test_contact_within_rounding_counts(path):
+    """Touching counts as crossing, and so does a crossing within the rounding of the orientations (an edge
+    through a face by 1e-17); a corner 2^-30 of the pair's size off the face does not."""
     third = 1.0 / 3.0
     v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [third, third, 1e-17], [third, third, -1e-17], [0.2, 0.3, 1]])
-    assert not I.self_intersecting_faces(v, np.array([[0, 1, 2], [3, 4, 5]])).any()
+    assert I.self_intersecting_faces(v, np.array([[0, 1, 2], [3, 4, 5]])).all()
     v[3, 2], v[4, 2] = 1e-3, -1e-3
     assert I.self_intersecting_faces(v, np.array([[0, 1, 2], [3, 4, 5]])).all()
+    v[3, 2], v[4, 2] = 2.0**-30, 1.0  # above the face, apart
+    assert not I.self_intersecting_faces(v, np.array([[0, 1, 2], [3, 4, 5]])).any()
 
 
 def test_crossing_and_touching(path):
     v = np.array([[0, 0, 0], [2, 0, 0], [0, 2, 0], [0.5, 0.5, -1], [0.5, 0.5, 1], [1.5, 1.5, 0.2]], float)
     assert I.self_intersecting_faces(v, np.array([[0, 1, 2], [3, 4, 5]])).tolist() == [True, True]
     touch = np.array([[0, 0, 0], [2, 0, 0], [0, 2, 0], [0.5, 0.5, 0], [0.5, 0.5, 1], [1.5, 0.5, 1]], float)
+    assert I.self_intersecting_faces(touch, np.array([[0, 1, 2], [3, 4, 5]])).all()  # a corner on the face
+    touch[3, 2] = 1e-9
     assert not I.self_intersecting_faces(touch, np.array([[0, 1, 2], [3, 4, 5]])).any()
     fold = np.array([[0, 0, 0], [2, 0, 0], [0, 2, 0], [1.0, 0.3, -0.5], [0.3, 1.0, 0.5]], float)
     assert I.self_intersecting_faces(fold, np.array([[0, 1, 2], [0, 3, 4]])).all()
     coplanar = np.array([[0, 0, 0], [2, 0, 0], [0, 2, 0], [0.5, 0.5, 0], [2.5, 0.5, 0], [0.5, 2.5, 0]], float)
     assert I.self_intersecting_faces(coplanar, np.array([[0, 1, 2], [3, 4, 5]])).all()
+    edge_to_edge = np.array([[0, 0, 0], [2, 0, 0], [0, 2, 0], [1, 1, 0], [2, 2, 0], [3, 1, 0]], float)
+    assert I.self_intersecting_faces(edge_to_edge, np.array([[0, 1, 2], [3, 4, 5]])).all()  # coplanar, touching
     # a degenerate face is neither tested nor flagged; fewer than two faces: nothing
     line = np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0]], float)
     assert not I.self_intersecting_faces(np.concatenate([v, line]), np.array([[0, 1, 2], [6, 7, 8]])).any()
     assert I.self_intersecting_faces(v, np.zeros((0, 3), np.int64)).shape == (0,)
+
+
+def test_a_corner_an_ulp_beyond_a_face_far_from_the_origin(path):
+    """The issue's CAD case in small: coordinates ~300, a corner of one face half an ulp (2.8e-14) beyond a
+    non-adjacent face's plane, or exactly on it: both count."""
+    v = np.array([[300, 300, 300], [301, 300, 300], [300, 301, 300], [300.25, 300.25, 300], [300.3, 300.2, 301],
+                  [300.2, 300.4, 301]], float)  # fmt: skip
+    f = np.array([[0, 1, 2], [3, 4, 5]])
+    assert I.self_intersecting_faces(v, f).all()
+    v[3, 2] = np.nextafter(300.0, 0.0)  # through the face by one ulp
+    assert I.self_intersecting_faces(v, f).all()
+    v[3, 2] = 300.0 + 1e-9
+    assert not I.self_intersecting_faces(v, f).any()
 
 
 def test_a_work_bound_that_cannot_be_met_raises(path, monkeypatch):

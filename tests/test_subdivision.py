@@ -140,17 +140,30 @@ def test_the_fits_map_off_the_cpu_is_the_same_map():
 
 
 def test_filter_falls_back_to_the_unfiltered_surface(monkeypatch):
-    def too_many(*args, **kwargs):
-        raise RuntimeError("self-intersection test: too many candidate face pairs")
-
+    """A filtered surface the check cannot bound its work on: the unfiltered surface, itself checked; where that
+    check cannot bound its work either, the file is refused (no unchecked mesh comes back)."""
+    checked = surface_filter.self_intersecting_faces
     m = trimesh.creation.icosphere(1)
+
+    def too_many_above(limit):
+        def check(v, f, *args, **kwargs):
+            if len(f) > limit:
+                raise RuntimeError("self-intersection test: too many candidate face pairs")
+            return checked(v, f, *args, **kwargs)
+
+        return check
+
     out = filter_surface(m.vertices, m.faces, 1, 1)
     assert len(out.faces) == 4 * len(m.faces) and not out.gave_up and out.restored == 0
-    monkeypatch.setattr(surface_filter, "self_intersecting_faces", too_many)
-    out = filter_surface(m.vertices, m.faces, 1, 1)
+    monkeypatch.setattr(surface_filter, "self_intersecting_faces", too_many_above(len(m.faces)))
+    out = filter_surface(m.vertices, m.faces, 1, 1, scale=2.0, offset=np.array([1.0, 0.0, -1.0]))
     assert out.gave_up
-    np.testing.assert_array_equal(out.vertices, m.vertices)
+    np.testing.assert_array_equal(out.vertices, m.vertices * 2.0 + [1.0, 0.0, -1.0])
     np.testing.assert_array_equal(out.faces, m.faces)
+    monkeypatch.setattr(surface_filter, "self_intersecting_faces", too_many_above(0))
+    for steps, levels in ((1, 1), (0, 0)):
+        with pytest.raises(ContainerError, match="work bound"):
+            filter_surface(m.vertices, m.faces, steps, levels)
 
 
 def test_a_file_asking_for_too_large_a_surface_is_refused(monkeypatch):
@@ -253,11 +266,12 @@ def test_encoder_keeps_the_smoothing_alone_when_the_decoder_drops_the_subdivided
 
     real = decoder.filter_surface
 
-    def never_settles(vertices, faces, smoothing, subdivision, creases=False):
+    def never_settles(vertices, faces, smoothing, subdivision, creases=False, scale=1.0, offset=None):
         if subdivision:
             v = np.asarray(vertices, np.float64)
-            return surface_filter.FilteredSurface(v, np.asarray(faces, np.int64), len(v), True)
-        return real(vertices, faces, smoothing, subdivision, creases)
+            out = v if offset is None else v * float(scale) + offset  # the output frame, as the decoder's
+            return surface_filter.FilteredSurface(out, np.asarray(faces, np.int64), len(v), True)
+        return real(vertices, faces, smoothing, subdivision, creases, scale, offset)
 
     monkeypatch.setattr(decoder, "filter_surface", never_settles)
     torch.set_num_threads(1)

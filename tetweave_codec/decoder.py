@@ -134,8 +134,11 @@ class _Extracted(NamedTuple):
     children: int  # faces per extracted face: 4^L, or 1 when the filter was dropped
 
 
-def _extract(points, s, c, sh_degree, backend, seconds, clock, smoothing=0, subdivision=0, creases=False) -> _Extracted:
-    """The closed surface and how it was made, timing each stage into `seconds`."""
+def _extract(
+    points, s, c, sh_degree, backend, seconds, clock, smoothing=0, subdivision=0, creases=False, scale=1.0, offset=None
+) -> _Extracted:
+    """The closed surface and how it was made, timing each stage into `seconds`; its vertices in the output frame
+    `v * scale + offset` (the frame of `points` when offset is None)."""
     check_degree(sh_degree)
     pts = np.asarray(points, dtype=np.float64)
     s = np.asarray(s, dtype=np.float64).reshape(-1)
@@ -153,7 +156,7 @@ def _extract(points, s, c, sh_degree, backend, seconds, clock, smoothing=0, subd
     t1 = clock()
     mt = marching_tets_numpy(pts, tz.tets, s, coeffs, tz.hull_faces)
     t2 = clock()
-    out = filter_surface(mt.vertices, mt.faces, smoothing, subdivision, creases)
+    out = filter_surface(mt.vertices, mt.faces, smoothing, subdivision, creases, scale, offset)
     seconds["delaunay"] = t1 - t0
     seconds["marching_tets"] = t2 - t1
     seconds["smoothing"] = clock() - t2
@@ -220,8 +223,11 @@ def decode_detailed(
             )
             backend = available_backends()[0]
     smoothing, subdivision = level_filter(tw.smoothing, tw.subdivision, level)
-    ex = _extract(tw.points, tw.s, tw.c, tw.sh_degree, backend, seconds, clock, smoothing, subdivision, tw.creases)
-    closed_v = ex.vertices * float(tw.scale) + tw.offset
+    ex = _extract(
+        tw.points, tw.s, tw.c, tw.sh_degree, backend, seconds, clock, smoothing, subdivision, tw.creases,
+        float(tw.scale), np.asarray(tw.offset, dtype=np.float64),
+    )  # fmt: skip
+    closed_v = ex.vertices
     vertices, faces = closed_v, ex.faces
     holes = tw.holes
     if holes is not None and len(holes):

@@ -109,12 +109,41 @@ static inline double cross2(const double *o, const double *a, const double *b) {
     return (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0]);
 }
 
-static int strictly_inside(const double *p, const double t[3][2]) {
-    double d1 = cross2(t[0], t[1], p), d2 = cross2(t[1], t[2], p), d3 = cross2(t[2], t[0], p);
-    return (d1 > 0 && d2 > 0 && d3 > 0) || (d1 < 0 && d2 < 0 && d3 < 0);
+/* The contact tolerances (the reference's TOUCH_3D, TOUCH_2D): with m the pair's scale, an orientation within
+ * TOUCH_3D m^3 and a 2-D cross product within TOUCH_2D m^2 count as zero (contact); see intersections.py. */
+#define TOUCH_3D 0x1p-43
+#define TOUCH_2D 0x1p-46
+
+/* Point p in the closed triangle t, up to tol2 on each 2-D cross product (the reference's _point_in_closed_2d). */
+static int point_in_closed_2d(const double *p, const double t[3][2], double tol2) {
+    int pos = 0, neg = 0;
+    for (int i = 0; i < 3; i++) {
+        double d = cross2(t[i], t[(i + 1) % 3], p);
+        pos |= d > tol2;
+        neg |= d < -tol2;
+    }
+    return !(pos && neg);
 }
 
-static int coplanar_overlap(const double *a[3], const double *b[3], const double *n) {
+/* Closed segments pq and rs meet, up to tol2 (the reference's _segments_touch_2d). */
+static int segments_touch_2d(const double *p, const double *q, const double *r, const double *s, double tol2) {
+    double d1 = cross2(p, q, r), d2 = cross2(p, q, s);
+    if ((d1 > tol2 && d2 > tol2) || (d1 < -tol2 && d2 < -tol2)) return 0;
+    double d3 = cross2(r, s, p), d4 = cross2(r, s, q);
+    if ((d3 > tol2 && d4 > tol2) || (d3 < -tol2 && d4 < -tol2)) return 0;
+    if (!(fabs(d1) <= tol2 && fabs(d2) <= tol2)) return 1;
+    for (int k = 0; k < 2; k++) { /* nearly collinear: the boxes overlap on both axes */
+        double lo = fmax(fmin(p[k], q[k]), fmin(r[k], s[k]));
+        double hi = fmin(fmax(p[k], q[k]), fmax(r[k], s[k]));
+        if (!(lo <= hi)) return 0;
+    }
+    return 1;
+}
+
+/* Segment pq and triangle abc (normal n) projected to the coordinate plane that drops the first axis of largest
+ * |n|: they meet there, up to tol2 (the reference's _segment_touches_in_plane). */
+static int segment_touches_in_plane(const double *p, const double *q, const double *a, const double *b,
+                                    const double *c, const double *n, double tol2) {
     static const int KEEP[3][2] = {{1, 2}, {0, 2}, {0, 1}};
     int axis = 0;
     double m = fabs(n[0]);
@@ -123,55 +152,27 @@ static int coplanar_overlap(const double *a[3], const double *b[3], const double
         m = fabs(n[1]);
     }
     if (fabs(n[2]) > m) axis = 2;
-    double u[3][2], w[3][2], cu[2], cw[2];
-    for (int i = 0; i < 3; i++)
-        for (int k = 0; k < 2; k++) {
-            u[i][k] = a[i][KEEP[axis][k]];
-            w[i][k] = b[i][KEEP[axis][k]];
-        }
-    for (int k = 0; k < 2; k++) {
-        cu[k] = ((u[0][k] + u[1][k]) + u[2][k]) / 3.0;
-        cw[k] = ((w[0][k] + w[1][k]) + w[2][k]) / 3.0;
-    }
-    if (strictly_inside(cu, w) || strictly_inside(cw, u)) return 1;
-    for (int i = 0; i < 3; i++) {
-        if (strictly_inside(u[i], w) || strictly_inside(w[i], u)) return 1;
-        const double *p = u[i], *q = u[(i + 1) % 3];
-        for (int j = 0; j < 3; j++) {
-            const double *r = w[j], *s = w[(j + 1) % 3];
-            if ((cross2(p, q, r) * cross2(p, q, s) < 0) && (cross2(r, s, p) * cross2(r, s, q) < 0)) return 1;
-        }
-    }
+    const int *keep = KEEP[axis];
+    double p2[2] = {p[keep[0]], p[keep[1]]}, q2[2] = {q[keep[0]], q[keep[1]]};
+    double t[3][2] = {{a[keep[0]], a[keep[1]]}, {b[keep[0]], b[keep[1]]}, {c[keep[0]], c[keep[1]]}};
+    if (point_in_closed_2d(p2, t, tol2) || point_in_closed_2d(q2, t, tol2)) return 1;
+    for (int j = 0; j < 3; j++)
+        if (segments_touch_2d(p2, q2, t[j], t[(j + 1) % 3], tol2)) return 1;
     return 0;
 }
 
-/* The pair's scale (pair_scale below), computed on first use: most pairs never need it. */
-typedef struct {
-    const double **a, **b;
-    double scale;
-    int have;
-} PairScale;
-
-static double pair_scale(const double *a[3], const double *b[3]);
-
-static inline double scale_of(PairScale *ps) {
-    if (!ps->have) {
-        ps->scale = pair_scale(ps->a, ps->b);
-        ps->have = 1;
+/* The closed segment pq meets the closed triangle abc (normal n) or comes within the tolerances of it, given
+ * sp = orient(a, b, c, p) and sq = orient(a, b, c, q) (the reference's _segment_touches_triangle). */
+static int segment_touches(double sp, double sq, double tol, double tol2, const double *p, const double *q,
+                           const double *a, const double *b, const double *c, const double *n) {
+    if ((sp > tol && sq > tol) || (sp < -tol && sq < -tol)) return 0;
+    if (!(fabs(sp) <= tol && fabs(sq) <= tol)) {
+        double s1 = orient(p, q, a, b), s2 = orient(p, q, b, c), s3 = orient(p, q, c, a);
+        int pos = s1 > tol || s2 > tol || s3 > tol, neg = s1 < -tol || s2 < -tol || s3 < -tol;
+        if (pos && neg) return 0;
     }
-    return ps->scale;
-}
-
-/* Segment pq crosses triangle abc (normal length nlen), given sp = orient(a, b, c, p) and sq = orient(a, b, c, q)
- * (the reference's _segment_crosses_triangle: opposite sides by more than 1e-12 nlen scale; the other
- * orientations are only needed then). */
-static inline int seg_cross_given(double sp, double sq, double nlen, PairScale *ps, const double *p,
-                                  const double *q, const double *a, const double *b, const double *c) {
-    if (!(sp * sq < 0)) return 0;
-    double tol = 1e-12 * nlen * scale_of(ps);
-    if (!(fabs(sp) > tol && fabs(sq) > tol)) return 0;
-    double s1 = orient(p, q, a, b), s2 = orient(p, q, b, c), s3 = orient(p, q, c, a);
-    return (s1 > 0 && s2 > 0 && s3 > 0) || (s1 < 0 && s2 < 0 && s3 < 0);
+    /* a common point projects to a common point: the 2-D test decides what the orientations leave open */
+    return segment_touches_in_plane(p, q, a, b, c, n, tol2);
 }
 
 /* The largest span of the two boxes (min x, y, z, max x, y, z) on one axis: every |coordinate difference| of the
@@ -199,72 +200,72 @@ static double pair_scale(const double *a[3], const double *b[3]) {
 }
 
 /* The reference's _pairs_intersect for one pair of faces fa < fb (their vertex indices; ta, tb their corners, 9
- * coordinates each) with normals na, nb, each
- * (x1 - x0) x (x2 - x0). orient(x0, x1, x2, y) is computed as n_x . (y - x0): the same operations in the same
- * order as the reference's. */
+ * coordinates each) with normals na, nb, each (x1 - x0) x (x2 - x0); box_a, box_b their boxes. orient(x0, x1, x2,
+ * y) is computed as n_x . (y - x0): the same operations in the same order as the reference's. nlen_a, nlen_b are
+ * not used (the tolerances are the pair's, not the faces'). */
 static int pair_intersects(const double *ta, const double *tb, const int64_t *fa, const int64_t *fb,
                            const double *na, const double *nb, const double *box_a, const double *box_b,
                            double nlen_a, double nlen_b) {
+    (void)nlen_a;
+    (void)nlen_b;
     /* bit j of m[i]: vertex i of a is vertex j of b (branch-free: most pairs are neighbours in a fan) */
     int m0 = (fa[0] == fb[0]) | (fa[0] == fb[1]) << 1 | (fa[0] == fb[2]) << 2;
     int m1 = (fa[1] == fb[0]) | (fa[1] == fb[1]) << 1 | (fa[1] == fb[2]) << 2;
     int m2 = (fa[2] == fb[0]) | (fa[2] == fb[1]) << 1 | (fa[2] == fb[2]) << 2;
-    int shared_a[3] = {m0 != 0, m1 != 0, m2 != 0}, used = m0 | m1 | m2;
-    int n_shared = shared_a[0] + shared_a[1] + shared_a[2];
-    if (n_shared >= 2) return 0;
+    int free_a[3] = {m0 == 0, m1 == 0, m2 == 0}, used = m0 | m1 | m2;
+    int free_b[3] = {!(used & 1), !(used >> 1 & 1), !(used >> 2 & 1)};
+    if (free_a[0] + free_a[1] + free_a[2] < 2 || free_b[0] + free_b[1] + free_b[2] < 2) return 0;
     const double *a[3], *b[3];
     for (int i = 0; i < 3; i++) {
         a[i] = ta + 3 * i;
         b[i] = tb + 3 * i;
     }
-    PairScale ps = {a, b, 0.0, 0};
     double d[3], oa[3], ob[3];
-    if (n_shared == 1) {
-        /* only the two other vertices of each face matter: orient them lazily, each side on its own */
-        int pa[2], pb[2], ka = 0, kb = 0, sa = 0;
-        for (int i = 0; i < 3; i++) {
-            if (!shared_a[i]) pa[ka++] = i;
-            else sa = i;
-            if (!(used >> i & 1)) pb[kb++] = i;
-        }
-        if (ka != 2 || kb != 2) return 0; /* a repeated index in one face: never a valid face */
-        for (int i = 0; i < 2; i++) {
-            sub3(a[pa[i]], b[0], d);
-            oa[i] = dot3(nb, d); /* orient(b0, b1, b2, a_pa[i]) */
-        }
-        /* coplanar pairs: the overlap in the plane decides (the segment tests would decide on rounding noise) */
-        if (fabs(oa[0]) <= 1e-12 * nlen_b * pair_span(box_a, box_b)) {
-            sub3(a[sa], b[0], d);
-            oa[2] = dot3(nb, d);
-            double bound = 1e-12 * nlen_b * scale_of(&ps);
-            if (fabs(oa[0]) <= bound && fabs(oa[1]) <= bound && fabs(oa[2]) <= bound)
-                return coplanar_overlap(a, b, nb);
-        }
-        if (seg_cross_given(oa[0], oa[1], nlen_b, &ps, a[pa[0]], a[pa[1]], b[0], b[1], b[2])) return 1;
-        for (int i = 0; i < 2; i++) {
-            sub3(b[pb[i]], a[0], d);
-            ob[i] = dot3(na, d); /* orient(a0, a1, a2, b_pb[i]) */
-        }
-        return seg_cross_given(ob[0], ob[1], nlen_a, &ps, b[pb[0]], b[pb[1]], a[0], a[1], a[2]);
-    }
     for (int i = 0; i < 3; i++) {
         sub3(a[i], b[0], d);
         oa[i] = dot3(nb, d); /* orient(b0, b1, b2, a_i) */
-    }
-    /* coplanar pairs: the overlap in the plane decides (cheap exact rejection first: pair_span is at least the
-     * reference's scale) */
-    if (fabs(oa[0]) <= 1e-12 * nlen_b * pair_span(box_a, box_b)) {
-        double bound = 1e-12 * nlen_b * scale_of(&ps);
-        if (fabs(oa[0]) <= bound && fabs(oa[1]) <= bound && fabs(oa[2]) <= bound) return coplanar_overlap(a, b, nb);
-    }
-    for (int i = 0; i < 3; i++) {
         sub3(b[i], a[0], d);
         ob[i] = dot3(na, d); /* orient(a0, a1, a2, b_i) */
     }
-    for (int i = 0; i < 3; i++)
-        if (seg_cross_given(oa[i], oa[(i + 1) % 3], nlen_b, &ps, a[i], a[(i + 1) % 3], b[0], b[1], b[2])) return 1;
-    for (int i = 0; i < 3; i++)
-        if (seg_cross_given(ob[i], ob[(i + 1) % 3], nlen_a, &ps, b[i], b[(i + 1) % 3], a[0], a[1], a[2])) return 1;
+    /* apart when one face's free corners lie beyond tol on one side of the other's plane: first against the
+     * bound from the boxes' span (at least the pair's scale, so at least tol: the same decision), which settles
+     * most pairs without the scale */
+    double span = pair_span(box_a, box_b);
+    double wide = TOUCH_3D * span * span * span;
+    for (int side = 0; side < 2; side++) {
+        const double *o = side ? ob : oa;
+        const int *fr = side ? free_b : free_a;
+        int above = 1, below = 1;
+        for (int i = 0; i < 3; i++)
+            if (fr[i]) {
+                above &= o[i] > wide;
+                below &= o[i] < -wide;
+            }
+        if (above || below) return 0;
+    }
+    double scale = pair_scale(a, b);
+    double tol = TOUCH_3D * scale * scale * scale, tol2 = TOUCH_2D * scale * scale;
+    for (int side = 0; side < 2; side++) {
+        const double *o = side ? ob : oa;
+        const int *fr = side ? free_b : free_a;
+        int above = 1, below = 1;
+        for (int i = 0; i < 3; i++)
+            if (fr[i]) {
+                above &= o[i] > tol;
+                below &= o[i] < -tol;
+            }
+        if (above || below) return 0;
+    }
+    for (int i = 0; i < 3; i++) {
+        int j = (i + 1) % 3;
+        if (free_a[i] && free_a[j] && segment_touches(oa[i], oa[j], tol, tol2, a[i], a[j], b[0], b[1], b[2], nb))
+            return 1;
+    }
+    for (int i = 0; i < 3; i++) {
+        int j = (i + 1) % 3;
+        if (free_b[i] && free_b[j] && segment_touches(ob[i], ob[j], tol, tol2, b[i], b[j], a[0], a[1], a[2], na))
+            return 1;
+    }
     return 0;
 }
 
@@ -898,9 +899,10 @@ done:
  *   its boundary turns around u by at least STAR_MARGIN (sine of the angle) at every step and once in all: the
  *   projection of a disk whose faces all keep their orientation and whose boundary is a simple closed curve is
  *   one-to-one (each point inside the curve has one preimage, counted with orientation), so no two faces of the
- *   patch meet outside the vertices and edges they share, by a margin ten orders of magnitude above the rounding
- *   of pair_intersects, which therefore answers 0 for each of the patch's pairs. A patch that fails this has all
- *   its pairs tested.
+ *   patch meet outside the vertices and edges they share, and faces sharing only u stay apart by at least
+ *   ~STAR_MARGIN of their edges, far above the contact tolerances of pair_intersects (TOUCH_3D m^3: faces within
+ *   ~2^-43 m), which therefore answers 0 for each of the patch's pairs (tests: stars == faces on Loop levels with
+ *   folds and crossings). A patch that fails this has all its pairs tested.
  *
  * `faces` answers with that pair set unless its grid fails at its first cell size; first_grid_feasible() proves
  * it does not (as `marked` does), else this is undecided. Undecided also when the runs are not Loop children or

@@ -1,14 +1,15 @@
 """Self-intersections of a mesh: the decoder's check after smoothing (geometry.smoothing) and a metric.
 
-- ``self_intersecting_faces``: the faces that properly intersect another face. Candidate pairs come from a
-  uniform grid over face bounding boxes. A pair sharing no vertex intersects, if the two are coplanar, when
-  their interiors overlap in the plane, else when an edge of one crosses the interior of the other (strict
-  orientation tests in float64, with both ends of the edge farther than 1e-12 of the pair's size from the
-  other's plane: on coplanar pairs and on edges lying in a plane the signs would be rounding noise). A pair
-  sharing exactly one vertex intersects, if coplanar, when their interiors overlap in the plane, else when the
-  edge opposite the shared vertex of one crosses the interior of the other (a fold around the vertex). Pairs
-  sharing an edge are not tested (their only possible intersection is an exactly coplanar fold), and touching
-  without crossing is not counted.
+- ``self_intersecting_faces``: the faces that cross or touch another face. Candidate pairs come from a uniform
+  grid over face bounding boxes. The predicate is conservative (formats/README.md, "Crossing faces"): closed
+  triangles, every orientation within TOUCH_3D m^3 (a 2-D cross product within TOUCH_2D m^2) of zero counting
+  as zero, m the pair's size, above the worst rounding of either, so faces that meet -- cross or touch -- are
+  always flagged, and faces within ~2^-43 m of each other may be. A pair sharing no vertex is flagged when an
+  edge of one touches the other, a pair sharing one vertex when the edge opposite it in one face touches the
+  other (a fold), a pair sharing an edge never; each segment test ends in a 2-D test of the projections (a
+  common point projects to a common point), which decides near-coplanar pairs whose orientations are noise.
+  tests/test_exact_check.py checks it against an exact implementation that shares no code with it
+  (benchmarks/exact_check.py).
 
 A compiled fast path (geometry/_intersect_native.c, built by setup.py when a C compiler is there) makes the same
 grid decisions and evaluates the same predicate with every binary64 operation in the same order (the arithmetic
@@ -124,46 +125,12 @@ def _orient(a: np.ndarray, b: np.ndarray, c: np.ndarray, d: np.ndarray) -> np.nd
     return row_dot(row_cross(b - a, c - a), d - a)
 
 
-def _segment_crosses_triangle(p, q, a, b, c, scale) -> np.ndarray:
-    """Segment pq properly crosses the interior of triangle abc (strict signs; touching is not crossing).
-
-    p and q must lie on opposite sides of abc's plane by more than 1e-12 |n| scale (n = (b - a) x (c - a),
-    scale (P,) the pair's size): an end within that of the plane touches it. Why: a segment lying in the plane
-    (a subdivided surface's flat reference has many, through its edge midpoints) has orientations that are
-    rounding noise, whose signs must not decide."""
-    n = row_cross(b - a, c - a)
-    sp, sq = row_dot(n, p - a), row_dot(n, q - a)
-    tol = 1e-12 * np.sqrt(row_dot(n, n)) * scale
-    s1, s2, s3 = _orient(p, q, a, b), _orient(p, q, b, c), _orient(p, q, c, a)
-    same = ((s1 > 0) & (s2 > 0) & (s3 > 0)) | ((s1 < 0) & (s2 < 0) & (s3 < 0))
-    return (sp * sq < 0) & (np.abs(sp) > tol) & (np.abs(sq) > tol) & same
-
-
-def _coplanar_overlap(t1: np.ndarray, t2: np.ndarray, normal: np.ndarray) -> np.ndarray:
-    """Interiors of coplanar triangles t1, t2 (P,3,3) overlap: projected on the dominant plane of `normal`
-    (the first axis of largest |normal|)."""
-    axis = np.argmax(np.abs(normal), axis=1)
-    keep = np.broadcast_to(np.array([[1, 2], [0, 2], [0, 1]])[axis][:, None, :], (len(t1), 3, 2))
-    u, w = np.take_along_axis(t1, keep, axis=2), np.take_along_axis(t2, keep, axis=2)
-
-    def cross2(o, a, b):
-        return (a[:, 0] - o[:, 0]) * (b[:, 1] - o[:, 1]) - (a[:, 1] - o[:, 1]) * (b[:, 0] - o[:, 0])
-
-    def strictly_inside(p, t):
-        d1, d2, d3 = cross2(t[:, 0], t[:, 1], p), cross2(t[:, 1], t[:, 2], p), cross2(t[:, 2], t[:, 0], p)
-        return ((d1 > 0) & (d2 > 0) & (d3 > 0)) | ((d1 < 0) & (d2 < 0) & (d3 < 0))
-
-    def centroid(t):
-        return ((t[:, 0] + t[:, 1]) + t[:, 2]) / 3.0
-
-    hit = strictly_inside(centroid(u), w) | strictly_inside(centroid(w), u)
-    for i in range(3):
-        hit |= strictly_inside(u[:, i], w) | strictly_inside(w[:, i], u)
-        p, q = u[:, i], u[:, (i + 1) % 3]
-        for j in range(3):
-            r, s = w[:, j], w[:, (j + 1) % 3]
-            hit |= (cross2(p, q, r) * cross2(p, q, s) < 0) & (cross2(r, s, p) * cross2(r, s, q) < 0)
-    return hit
+# Contact tolerances of the predicate (formats/README.md, "Crossing faces"): with m the pair's scale
+# (`_pair_scale`), an orientation of two of its points' differences errs by at most 384 u m^3 (u = 2^-53: eight
+# roundings per term, six terms of differences <= 2m), a 2-D cross product by 32 u m^2. A sign beyond
+# TOUCH_3D m^3 (2.7x that) or TOUCH_2D m^2 (4x) is exact; anything within counts as zero, i.e. as contact.
+TOUCH_3D = 2.0**-43
+TOUCH_2D = 2.0**-46
 
 
 def _pair_scale(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -171,53 +138,106 @@ def _pair_scale(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.maximum(np.abs(a - b[:, :1]).max(axis=(1, 2)), np.abs(b - b[:, :1]).max(axis=(1, 2)))
 
 
-def _coplanar(a: np.ndarray, b: np.ndarray, n: np.ndarray, scale: np.ndarray) -> np.ndarray:
-    """Triangles a (P,3,3) lie in the plane of triangles b (P,3,3) with normals n (P,3) = (b1 - b0) x (b2 - b0),
-    up to 1e-12 of |n| times `_pair_scale(a, b)`."""
-    bound = 1e-12 * np.sqrt(row_dot(n, n)) * scale
-    coplanar = np.ones(len(a), dtype=bool)
-    for k in range(3):
-        coplanar &= np.abs(row_dot(a[:, k] - b[:, 0], n)) <= bound
-    return coplanar
+def _cross2(o, a, b):
+    return (a[:, 0] - o[:, 0]) * (b[:, 1] - o[:, 1]) - (a[:, 1] - o[:, 1]) * (b[:, 0] - o[:, 0])
 
 
-def _pairs_intersect(t1: np.ndarray, t2: np.ndarray, shared_one: np.ndarray, opp1, opp2) -> np.ndarray:
-    """Intersection test of triangle pairs t1, t2 (P,3,3); see the module docstring."""
+def _beyond(values, tol):
+    """(P,) some value > tol and (P,) some value < -tol, of a list of (P,) arrays."""
+    pos = np.zeros(len(tol), dtype=bool)
+    neg = np.zeros(len(tol), dtype=bool)
+    for x in values:
+        pos |= x > tol
+        neg |= x < -tol
+    return pos, neg
+
+
+def _point_in_closed_2d(p, t, tol):
+    """Point p (P,2) in the closed triangle t (P,3,2), up to `tol` on each 2-D cross product."""
+    pos, neg = _beyond([_cross2(t[:, i], t[:, (i + 1) % 3], p) for i in range(3)], tol)
+    return ~(pos & neg)
+
+
+def _segments_touch_2d(p, q, r, s, tol):
+    """Closed segments pq and rs (P,2) meet, up to `tol` on each 2-D cross product; nearly collinear ones when
+    their boxes overlap on both axes."""
+    d1, d2 = _cross2(p, q, r), _cross2(p, q, s)
+    d3, d4 = _cross2(r, s, p), _cross2(r, s, q)
+    apart = ((d1 > tol) & (d2 > tol)) | ((d1 < -tol) & (d2 < -tol))
+    apart |= ((d3 > tol) & (d4 > tol)) | ((d3 < -tol) & (d4 < -tol))
+    boxes = np.ones(len(tol), dtype=bool)
+    for k in range(2):
+        lo = np.maximum(np.minimum(p[:, k], q[:, k]), np.minimum(r[:, k], s[:, k]))
+        hi = np.minimum(np.maximum(p[:, k], q[:, k]), np.maximum(r[:, k], s[:, k]))
+        boxes &= lo <= hi
+    collinear = (np.abs(d1) <= tol) & (np.abs(d2) <= tol)
+    return ~apart & (~collinear | boxes)
+
+
+def _segment_touches_in_plane(p, q, t, normal, tol2):
+    """Segment pq (P,3) and triangle t (P,3,3) projected to the coordinate plane that drops the first axis of
+    largest |normal| (t's): the closed segment meets the closed triangle there, up to tol2."""
+    axis = np.argmax(np.abs(normal), axis=1)
+    keep = np.array([[1, 2], [0, 2], [0, 1]])[axis]
+    rows = np.arange(len(p))[:, None]
+    p2, q2 = p[rows, keep], q[rows, keep]
+    t2 = np.stack([t[:, i][rows, keep] for i in range(3)], axis=1)
+    hit = _point_in_closed_2d(p2, t2, tol2) | _point_in_closed_2d(q2, t2, tol2)
+    for j in range(3):
+        hit |= _segments_touch_2d(p2, q2, t2[:, j], t2[:, (j + 1) % 3], tol2)
+    return hit
+
+
+def _segment_touches_triangle(p, q, t, normal, sp, sq, tol, tol2):
+    """The closed segment pq (P,3) meets the closed triangle t (P,3,3) or comes within the tolerances of it.
+
+    normal: (t1 - t0) x (t2 - t0); sp, sq: orient(t0, t1, t2, p), orient(t0, t1, t2, q) as normal . (x - t0).
+    Apart when both ends are beyond tol on one side of the plane, or when the segment is not within tol of the
+    plane at both ends and the line through p and q passes beyond tol outside an edge of t (orient(p, q, t_i,
+    t_i+1) of both signs); else the 2-D test of `_segment_touches_in_plane` decides (a common point projects to
+    a common point, so it is a necessary condition of every contact: near-coplanar pairs, whose orientations
+    are rounding noise, are decided there)."""
+    maybe = ~(((sp > tol) & (sq > tol)) | ((sp < -tol) & (sq < -tol)))
+    slanted = maybe & ~((np.abs(sp) <= tol) & (np.abs(sq) <= tol))
+    if slanted.any():
+        i = np.nonzero(slanted)[0]
+        a, b, c, pp, qq = t[i, 0], t[i, 1], t[i, 2], p[i], q[i]
+        pos, neg = _beyond([_orient(pp, qq, a, b), _orient(pp, qq, b, c), _orient(pp, qq, c, a)], tol[i])
+        maybe[i] = ~(pos & neg)
+    hit = np.zeros(len(p), dtype=bool)
+    if maybe.any():
+        i = np.nonzero(maybe)[0]
+        hit[i] = _segment_touches_in_plane(p[i], q[i], t[i], normal[i], tol2[i])
+    return hit
+
+
+def _pairs_intersect(t1: np.ndarray, t2: np.ndarray, free1: np.ndarray, free2: np.ndarray) -> np.ndarray:
+    """Contact test of triangle pairs t1, t2 (P,3,3) sharing at most one vertex; free1, free2 (P,3) bool: the
+    corners not shared. See formats/README.md "Crossing faces": apart when one face's free corners lie beyond
+    the tolerance on one side of the other's plane, else touching when an edge of free corners (all three of a
+    pair sharing nothing, the one opposite the shared vertex otherwise) touches the other face."""
+    scale = _pair_scale(t1, t2)
+    tol = TOUCH_3D * scale * scale * scale
+    tol2 = TOUCH_2D * scale * scale
+    normals, sides = [], []
+    apart = np.zeros(len(t1), dtype=bool)
+    for x, y, free in ((t1, t2, free1), (t2, t1, free2)):
+        n = row_cross(y[:, 1] - y[:, 0], y[:, 2] - y[:, 0])
+        o = np.stack([row_dot(n, x[:, i] - y[:, 0]) for i in range(3)], axis=1)
+        above = np.where(free, o > tol[:, None], True).all(axis=1)
+        below = np.where(free, o < -tol[:, None], True).all(axis=1)
+        apart |= above | below
+        normals.append(n)
+        sides.append(o)
     hit = np.zeros(len(t1), dtype=bool)
-    disjoint = ~shared_one
-    if disjoint.any():
-        a, b = t1[disjoint], t2[disjoint]
-        scale = _pair_scale(a, b)
-        h = np.zeros(len(a), dtype=bool)
-        for x, y in ((a, b), (b, a)):
-            for i in range(3):
-                h |= _segment_crosses_triangle(x[:, i], x[:, (i + 1) % 3], y[:, 0], y[:, 1], y[:, 2], scale)
-        # coplanar pairs: no edge can properly cross (the segment tests above decide on rounding noise there),
-        # the overlap in the plane decides
-        n = row_cross(b[:, 1] - b[:, 0], b[:, 2] - b[:, 0])
-        coplanar = _coplanar(a, b, n, scale)
-        h[coplanar] = False
-        if coplanar.any():
-            h[coplanar] = _coplanar_overlap(a[coplanar], b[coplanar], n[coplanar])
-        hit[disjoint] = h
-    if shared_one.any():
-        idx = np.nonzero(shared_one)[0]
-        a, b = t1[idx], t2[idx]
-        rows = np.arange(len(idx))
-        # coplanar pairs (a subdivided surface's flat reference has many): the segment tests below would decide
-        # on rounding noise, so the overlap in the plane decides (a fold around the shared vertex)
-        n = row_cross(b[:, 1] - b[:, 0], b[:, 2] - b[:, 0])
-        scale = _pair_scale(a, b)
-        coplanar = _coplanar(a, b, n, scale)
-        # opp* (P,2): local indices of the two vertices not shared, per triangle
-        p1, q1 = a[rows, opp1[idx, 0]], a[rows, opp1[idx, 1]]
-        p2, q2 = b[rows, opp2[idx, 0]], b[rows, opp2[idx, 1]]
-        h = _segment_crosses_triangle(p1, q1, b[:, 0], b[:, 1], b[:, 2], scale)
-        h |= _segment_crosses_triangle(p2, q2, a[:, 0], a[:, 1], a[:, 2], scale)
-        h[coplanar] = False
-        if coplanar.any():
-            h[coplanar] = _coplanar_overlap(a[coplanar], b[coplanar], n[coplanar])
-        hit[idx] = h
+    for (x, y, free), n, o in zip(((t1, t2, free1), (t2, t1, free2)), normals, sides, strict=True):
+        for i in range(3):
+            j = (i + 1) % 3
+            use = np.nonzero(~apart & ~hit & free[:, i] & free[:, j])[0]
+            if len(use):
+                hit[use] |= _segment_touches_triangle(
+                    x[use, i], x[use, j], y[use], n[use], o[use, i], o[use, j], tol[use], tol2[use]
+                )
     return hit
 
 
@@ -276,12 +296,8 @@ def self_intersecting_faces(
         equal = fa[:, :, None] == fb[:, None, :]  # (P,3,3): vertex i of a == vertex j of b
         n_shared = equal.any(axis=2).sum(axis=1)
         test = n_shared <= 1
-        chunk, fa, fb, equal, n_shared = chunk[test], fa[test], fb[test], equal[test], n_shared[test]
-        shared_one = n_shared == 1
-        # local indices of the non-shared vertices: sort puts the shared one (True) last
-        opp1 = np.argsort(equal.any(axis=2), axis=1, kind="stable")[:, :2]
-        opp2 = np.argsort(equal.any(axis=1), axis=1, kind="stable")[:, :2]
-        hit = _pairs_intersect(v[fa], v[fb], shared_one, opp1, opp2)
+        chunk, fa, fb, equal = chunk[test], fa[test], fb[test], equal[test]
+        hit = _pairs_intersect(v[fa], v[fb], ~equal.any(axis=2), ~equal.any(axis=1))
         flagged[chunk[hit, 0]] = True
         flagged[chunk[hit, 1]] = True
     return flagged

@@ -7,7 +7,10 @@ geometry/subdivision.py). `filter_surface` is the decoder's exact sequence (form
 Both steps move vertices off the piecewise-flat surface that marching tets guarantees free of self-intersections,
 so the decoder checks the result and puts the vertices of crossing faces back to their *reference* positions: the
 unsmoothed surface, refined by midpoints to the subdivided faces (geometrically the unsmoothed surface itself). If
-that does not settle within MAX_CHECKS checks, the result is the unsmoothed, unsubdivided surface.
+that does not settle within MAX_CHECKS checks, the result is the unsmoothed, unsubdivided surface. The checks run
+on the coordinates the decoder returns (after the output transform), and every path ends with one: the
+unfiltered surface, returned without a filter or when the filter is dropped, is checked too, and a file whose
+unfiltered surface crosses or touches itself is refused (ContainerError), so no decoded mesh fails the check.
 """
 
 from __future__ import annotations
@@ -52,13 +55,25 @@ class FilteredSurface(NamedTuple):
 
 
 def filter_surface(
-    vertices: np.ndarray, faces: np.ndarray, smoothing: int, subdivision: int, creases: bool = False
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    smoothing: int,
+    subdivision: int,
+    creases: bool = False,
+    scale: float = 1.0,
+    offset: np.ndarray | None = None,
 ) -> FilteredSurface:
     """The decoder's filter of a closed, consistently oriented marching-tets surface vertices (V,3), faces (F,3):
-    `smoothing` Taubin steps, `subdivision` Loop levels, then `restore_crossings` against the reference. With
-    `creases`, both keep the creases found on the surface as extracted (`smoothing.crease_edges`): the Taubin steps
-    average over `smoothing.crease_neighbours`, the Loop levels follow the crease rules (`subdivision.loop_level`).
-    ContainerError when the subdivided surface would have more than MAX_SUBDIVIDED_FACES faces."""
+    `smoothing` Taubin steps, `subdivision` Loop levels (both in the frame of `vertices`), then the output
+    transform `v * scale + offset` (none when offset is None) and `restore_crossings` against the reference, so
+    the guarantee holds for the coordinates returned. With `creases`, both keep the creases found on the surface
+    as extracted (`smoothing.crease_edges`): the Taubin steps average over `smoothing.crease_neighbours`, the Loop
+    levels follow the crease rules (`subdivision.loop_level`).
+
+    Every path ends checked (formats/README.md, "No self-intersections"): the unfiltered surface (no filter, or
+    the filter dropped) is checked as it is returned. ContainerError when the subdivided surface would have more
+    than MAX_SUBDIVIDED_FACES faces, and when the unfiltered surface itself has faces that cross or touch (or the
+    check cannot bound its work there): a file no encoder writes."""
     v0 = np.asarray(vertices, dtype=np.float64)
     f0 = np.asarray(faces, dtype=np.int64)
     if subdivision > 0 and len(f0) * 4**subdivision > MAX_SUBDIVIDED_FACES:
@@ -67,7 +82,7 @@ def filter_surface(
             f"{MAX_SUBDIVIDED_FACES:,}"
         )
     if (smoothing <= 0 and subdivision <= 0) or len(f0) == 0:
-        return FilteredSurface(v0, f0, 0, False)
+        return FilteredSurface(_checked_control(v0, f0, scale, offset), f0, 0, False)
     # marching tets' output is a checked closed 2-manifold: its half-edges are the edges, once each way
     edges = mesh_edges(f0, len(v0), closed=True)
     smooth_edges, loop_creases = edges, None
@@ -79,10 +94,36 @@ def filter_surface(
     reference, f = v0, f0
     if subdivision > 0:
         v, reference, f = loop_and_midpoint(v, v0, f0, subdivision, neighbours=edges, creases=loop_creases)
+    v, reference = _transformed(v, scale, offset), _transformed(reference, scale, offset)
     out, restored, gave_up = restore_crossings(v, reference, f, children=4 if subdivision > 0 else 1)
     if gave_up:
-        return FilteredSurface(v0, f0, len(v0), True)
+        return FilteredSurface(_checked_control(v0, f0, scale, offset), f0, len(v0), True)
     return FilteredSurface(out, f, restored, False)
+
+
+def _transformed(v: np.ndarray, scale: float, offset: np.ndarray | None) -> np.ndarray:
+    """v * scale + offset (two roundings per coordinate, the decoder's output transform); v itself without an
+    offset."""
+    return v if offset is None else v * float(scale) + offset
+
+
+def _checked_control(v0: np.ndarray, f0: np.ndarray, scale: float, offset: np.ndarray | None) -> np.ndarray:
+    """The unfiltered surface in the output frame, checked: ContainerError when two of its faces cross or touch
+    (marching tets on a proper tetrahedralization never makes such faces in exact arithmetic; a file can through
+    saturated SH terms, which put vertices on the points, and through rounding at its extremes) or when the check
+    cannot bound its work."""
+    out = _transformed(v0, scale, offset)
+    if len(f0) < 2:
+        return out
+    try:
+        bad = int(self_intersecting_faces(out, f0).sum())
+    except RuntimeError:
+        raise ContainerError(
+            "invalid .tw file: its surface cannot be checked for self-intersections within the decoder's work bound"
+        ) from None
+    if bad:
+        raise ContainerError(f"invalid .tw file: {bad:,} faces of its surface cross or touch other faces")
+    return out
 
 
 def restore_crossings(
