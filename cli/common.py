@@ -6,9 +6,13 @@ import click
 
 from tetweave_codec.fit.config import QUALITY
 
+# More torch threads than this is a typing error, not a machine: torch would try to allocate a pool for them and
+# fail deep inside the fit ("out of memory", exit 1) instead of at the command line.
+MAX_THREADS = 1024
+
 threads_option = click.option(
     "--threads",
-    type=click.IntRange(min=0),
+    type=click.IntRange(min=0, max=MAX_THREADS),
     default=0,
     show_default=True,
     help="CPU threads for torch (0: torch's default). Lower it when other work shares the machine.",

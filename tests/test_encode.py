@@ -323,3 +323,15 @@ def test_encode_without_a_rate_sizes_the_fit_from_the_input():
     assert result.stats["points_target"] == encoder.default_points(len(f), 1)  # a torus gets one Loop level
     assert result.stats["faces"] <= encoder.DEFAULT_FACE_RATIO * len(f)
     assert result.prepared is not None and len(result.prepared.faces) == len(f)
+
+
+@pytest.mark.parametrize("threads", ["-1", "100000"])
+def test_threads_out_of_range_is_a_usage_error(tmp_path, threads):
+    v, f = torus()
+    import trimesh
+
+    src = tmp_path / "torus.ply"
+    trimesh.Trimesh(v, f, process=False).export(src)
+    res = CliRunner().invoke(main, ["encode", str(src), "--threads", threads])
+    assert res.exit_code == 2 and "--threads" in res.output, res.output
+    assert not (tmp_path / "torus.tw").exists()
