@@ -563,6 +563,12 @@ def metrics(inp, v: np.ndarray, f: np.ndarray) -> dict:
     return {"chamfer": float(0.5 * (d_ab.mean() + d_ba.mean())), "normal_consistency": float(cos.mean())}
 
 
+def stored_points(data: bytes) -> int:
+    from tetweave_codec.formats.tw import unpack
+
+    return len(unpack(data).s)
+
+
 def cmd_run(args) -> None:
     import torch
 
@@ -604,7 +610,7 @@ def cmd_run(args) -> None:
         "bytes": len(result.data),
         **m,
         "bxc": len(result.data) * m["chamfer"],
-        "points": int(result.stats.get("points_stored", result.stats.get("points", 0)) or 0),
+        "points": stored_points(result.data),
         "points_target": result.stats.get("points_target"),
         "faces": int(len(df)),
         "cpu_s": round(cpu, 1),
@@ -782,6 +788,63 @@ def _stored_points(tw) -> np.ndarray:
     return np.asarray(tw.points, np.float64)
 
 
+def cut_ratios(points: np.ndarray, ratio: float) -> float:
+    """Median extent ratio (x over y, over `ratio`... reported raw) of the pieces of the plane z = 0 cut by the
+    Delaunay tets of `points` (3-D): each tet with corners on both sides gives the crossing points of its edges."""
+    from scipy.spatial import Delaunay
+
+    tets = Delaunay(points).simplices
+    side = points[tets, 2] > 0
+    cross = side.any(1) & ~side.all(1)
+    t = tets[cross]
+    pts = points[t]  # (T,4,3)
+    ii, jj = np.triu_indices(4, 1)
+    a, b = pts[:, ii], pts[:, jj]
+    za, zb = a[..., 2], b[..., 2]
+    on = (za > 0) != (zb > 0)
+    lam = za / np.where(on, za - zb, 1.0)
+    q = a + lam[..., None] * (b - a)  # (T,6,3), valid where `on`
+    qx = np.where(on, q[..., 0], np.nan)
+    qy = np.where(on, q[..., 1], np.nan)
+    ex = np.nanmax(qx, 1) - np.nanmin(qx, 1)
+    ey = np.nanmax(qy, 1) - np.nanmin(qy, 1)
+    centre = (np.abs(np.nanmean(qx, 1)) < 0.3) & (np.abs(np.nanmean(qy, 1)) < 0.3)
+    return float(np.median(ex[centre] / np.maximum(ey[centre], 1e-12)))
+
+
+def cmd_delaunay(args) -> None:
+    """Does isotropic Delaunay keep an anisotropic point set's anisotropy? A flat patch (the plane z = 0, 1 x 1),
+    points spaced h sqrt(r) along x and h / sqrt(r) along y, each offset across by U[SHELL_GAP, 1] x h with a random
+    sign as the encoder's shell (width h, or `short`: h / sqrt(r)); the median x / y extent of the
+    marching-tets pieces of the cut (r for an ideal stretched lattice)."""
+    from tetweave_codec.fit.initialize import SHELL_GAP
+
+    rng = np.random.default_rng(0)
+    h = 0.03
+    rows = []
+    for r, shell in ((1.0, "h"), (2.0, "h"), (4.0, "h"), (4.0, "short")):
+        hx, hy = h * math.sqrt(r), h / math.sqrt(r)
+        width = h if shell == "h" else hy
+        for kind in ("metric blue noise", "jittered lattice", "lattice"):
+            if kind == "metric blue noise":
+                cand = rng.uniform(-0.7, 0.7, size=(40_000, 2))
+                g = np.zeros((len(cand), 3, 3))
+                g[:, 0, 0], g[:, 1, 1], g[:, 2, 2] = 1 / hx**2, 1 / hy**2, 1 / hy**2
+                n_want = int(1.4 * 1.4 / (hx * hy))
+                c3 = np.concatenate([cand, np.zeros((len(cand), 1))], 1)
+                sel = metric_mis(c3, g, np.full(len(cand), hx), n_want, rng)
+                xy = cand[sel]
+            else:
+                gx, gy = np.meshgrid(np.arange(-0.7, 0.7, hx), np.arange(-0.7, 0.7, hy), indexing="ij")
+                xy = np.stack([gx.ravel(), gy.ravel()], 1)
+                if kind == "jittered lattice":
+                    xy = xy + rng.uniform(-0.15, 0.15, size=xy.shape) * np.array([hx, hy])
+            z = rng.uniform(SHELL_GAP, 1.0, len(xy)) * width * rng.choice([-1.0, 1.0], len(xy))
+            pts = np.concatenate([xy, z[:, None]], 1)
+            rows.append((r, kind, len(pts), cut_ratios(pts, r)))
+            print(f"| {r:g} | {shell} | {kind} | {len(pts)} | {rows[-1][3]:.2f} |", flush=True)
+
+
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     sub = ap.add_subparsers(dest="cmd", required=True)
@@ -808,8 +871,11 @@ def main(argv=None) -> None:
     p.add_argument("--elev", type=float, default=25.0)
     p.add_argument("--azim", type=float, default=-60.0)
     p.add_argument("--dpi", type=int, default=110)
+    sub.add_parser("delaunay")
     args = ap.parse_args(argv)
-    {"run": cmd_run, "synth": cmd_synth, "table": cmd_table, "picture": cmd_picture}[args.cmd](args)
+    {"run": cmd_run, "synth": cmd_synth, "table": cmd_table, "picture": cmd_picture, "delaunay": cmd_delaunay}[
+        args.cmd
+    ](args)
 
 
 if __name__ == "__main__":
