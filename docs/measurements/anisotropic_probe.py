@@ -729,6 +729,7 @@ def cmd_picture(args) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.collections import LineCollection
     from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
     from tetweave_codec.decoder import decode
@@ -755,24 +756,30 @@ def cmd_picture(args) -> None:
             o = [i for i in range(3) if i != axis]
             near = np.abs(np.hypot(pts[:, o[0]], pts[:, o[1]]) - 0.08) < 0.05
             sel = near & (np.abs(pts[:, axis]) < 0.45)
-            ax.scatter(pts[sel, axis], np.arctan2(pts[sel, o[1]], pts[sel, o[0]]), s=2, c="C3", zorder=3)
+            arc = 0.08 * np.arctan2(pts[sel, o[1]], pts[sel, o[0]])  # arc length on the input's radius
+            ax.scatter(
+                pts[sel, axis],
+                arc,
+                s=3,
+                c=np.where(pts[sel, o[0]] ** 2 + pts[sel, o[1]] ** 2 > 0.0064, "C3", "C0"),
+                zorder=3,
+            )
             tri = cf[(np.abs(cv[cf][:, :, axis]).max(1) < 0.45)]
-            a = np.arctan2(cv[:, o[1]], cv[:, o[0]])
-            for t in tri:
-                aa = a[t]
-                if np.ptp(aa) > np.pi:
-                    continue
-                xs = np.append(cv[t, axis], cv[t[0], axis])
-                ax.plot(xs, np.append(aa, aa[0]), lw=0.3, c="k")
+            a = 0.08 * np.arctan2(cv[:, o[1]], cv[:, o[0]])
+            tri = tri[np.ptp(a[tri], axis=1) < 0.08 * np.pi]  # not across the seam
+            seg = np.stack([np.stack([cv[tri[:, k], axis], a[tri[:, k]]], 1) for k in (0, 1, 2, 0)], 1)
+            ax.add_collection(LineCollection(np.concatenate([seg[:, k : k + 2] for k in range(3)]), lw=0.3, colors="k"))
             ax.set_xlabel("along the axis")
-            ax.set_ylabel("angle (rad)")
-            ax.set_xlim(-0.45, 0.45)
-            ax.set_title(title, fontsize=8)
+            ax.set_ylabel("around (arc length)")
+            ax.set_xlim(-0.3, 0.3)
+            ax.set_ylim(-0.08 * np.pi, 0.08 * np.pi)
+            ax.set_aspect("equal")
+            ax.set_title(f"{title}: {len(pts):,} points; red outside, blue inside", fontsize=8)
         else:
             ax = fig.add_subplot(1, n, k + 1, projection="3d")
             poly = Poly3DCollection(cv[cf], facecolor=(0.85, 0.85, 0.9), edgecolor="k", linewidths=0.1)
             ax.add_collection3d(poly)
-            lim = 0.9
+            lim = args.lim
             ax.set_xlim(-lim, lim)
             ax.set_ylim(-lim, lim)
             ax.set_zlim(-lim, lim)
@@ -781,6 +788,9 @@ def cmd_picture(args) -> None:
             ax.set_title(f"{title}\n{len(pts):,} points, {len(cf):,} control triangles", fontsize=8)
     fig.tight_layout()
     fig.savefig(args.out)
+    from PIL import Image
+
+    Image.open(args.out).convert("RGB").quantize(colors=32).save(args.out, optimize=True)  # small PNG
 
 
 def _stored_points(tw) -> np.ndarray:
@@ -825,7 +835,7 @@ def cmd_delaunay(args) -> None:
     for r, shell in ((1.0, "h"), (2.0, "h"), (4.0, "h"), (4.0, "short")):
         hx, hy = h * math.sqrt(r), h / math.sqrt(r)
         width = h if shell == "h" else hy
-        for kind in ("metric blue noise", "jittered lattice", "lattice"):
+        for kind in args.kinds.split(","):
             if kind == "metric blue noise":
                 cand = rng.uniform(-0.7, 0.7, size=(40_000, 2))
                 g = np.zeros((len(cand), 3, 3))
@@ -834,6 +844,13 @@ def cmd_delaunay(args) -> None:
                 c3 = np.concatenate([cand, np.zeros((len(cand), 1))], 1)
                 sel = metric_mis(c3, g, np.full(len(cand), hx), n_want, rng)
                 xy = cand[sel]
+            elif kind == "hex lattice":  # what Lloyd in a constant metric converges to: a stretched hexagonal lattice
+                step = math.sqrt(2.0 / math.sqrt(3.0))  # unit density in the metric's coordinates
+                gi, gj = np.meshgrid(np.arange(-60, 61), np.arange(-60, 61), indexing="ij")
+                u = step * (gi + 0.5 * (gj % 2))
+                w = step * math.sqrt(3.0) / 2.0 * gj
+                xy = np.stack([u.ravel() * hx, w.ravel() * hy], 1)
+                xy = xy[(np.abs(xy) < 0.7).all(1)]
             else:
                 gx, gy = np.meshgrid(np.arange(-0.7, 0.7, hx), np.arange(-0.7, 0.7, hy), indexing="ij")
                 xy = np.stack([gx.ravel(), gy.ravel()], 1)
@@ -871,7 +888,9 @@ def main(argv=None) -> None:
     p.add_argument("--elev", type=float, default=25.0)
     p.add_argument("--azim", type=float, default=-60.0)
     p.add_argument("--dpi", type=int, default=110)
-    sub.add_parser("delaunay")
+    p.add_argument("--lim", type=float, default=0.9)
+    d = sub.add_parser("delaunay")
+    d.add_argument("--kinds", default="metric blue noise,jittered lattice,lattice,hex lattice")
     args = ap.parse_args(argv)
     {"run": cmd_run, "synth": cmd_synth, "table": cmd_table, "picture": cmd_picture, "delaunay": cmd_delaunay}[
         args.cmd
