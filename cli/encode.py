@@ -124,6 +124,18 @@ def _progress_lines(every_s: float = PROGRESS_LINE_SECONDS):
     "input's boundary (2-manifold with boundary, no self-intersections) and its error is not that of the caps. "
     "Closed inputs decode closed either way.",
 )
+@click.option(
+    "--surface",
+    type=click.Choice(["auto", "visible", "all"]),
+    default="auto",
+    show_default=True,
+    help="What the fit takes as the input's surface: all = every face; visible = the faces offscreen renders see "
+    "from outside, each turned towards its views (hidden parts, inner walls and the insides of overlapping parts "
+    "drop out; face orientation does not matter); auto = visible when the input needs it (faces with "
+    "inconsistent orientation, or over 1 % of its area hidden from every view), else all (the same file). A "
+    "cavity no outside view sees (the inside of a closed box) is not part of the visible surface. The Chamfer "
+    "distance, --size and --max-error measure against the surface fitted.",
+)
 @quality_option
 @iters_option
 @click.option(
@@ -202,6 +214,7 @@ def encode(
     sh_degree: str,
     layout: str,
     holes: str,
+    surface: str,
     quality: str,
     iters: int | None,
     size: int | None,
@@ -236,6 +249,7 @@ def encode(
         sh_degree=sh_degree,
         layout=layout,
         holes=holes,
+        surface=surface,
         quality=quality,
         iters=iters,
         size=size,
@@ -326,7 +340,13 @@ def _encode_one(mesh: Path, output: Path | None, opts, quiet: bool) -> None:
         + f"{st['vertices']:,} vertices, {st['faces']:,} faces"
         + (f", the input's holes kept open ({st['hole_faces']:,} faces removed)" if st.get("hole_faces") else "")
     )
-    click.echo(f"Chamfer distance to the input (normalized frame): {chamfer}")
+    if st.get("surface") == "visible":
+        click.echo(f"fitted the surface a viewer sees, from renders ({st['surface_reason']})")
+        click.echo(f"Chamfer distance to the input's visible surface (normalized frame): {chamfer}")
+    else:
+        if st.get("surface_reason"):
+            click.echo(f"fitted every face of the input ({st['surface_reason']})")
+        click.echo(f"Chamfer distance to the input (normalized frame): {chamfer}")
     click.echo(_context_line(result, len(faces)))
     if "target_bytes" in st:
         click.echo(f"size target {st['target_bytes']:,} bytes: wrote {st['bytes']:,} ({st['rate_control']})")

@@ -138,3 +138,20 @@ def test_fixed_options_give_the_pinned_bytes(name, one_thread):
 @pytest.mark.parametrize("name", list(SLOW_CASES))
 def test_fixed_options_give_the_pinned_bytes_slow(name, one_thread):
     _check(name, SLOW_CASES[name])
+
+
+# --surface (fit/visible.py): clean inputs, open or closed, keep their bytes under the default "auto".
+@pytest.mark.parametrize("shape", [torus, sphere, cut_sphere, csg_part, cube])
+def test_auto_surface_keeps_clean_inputs_whole(shape):
+    from tetweave_codec.fit.visible import choose_surface
+    from tetweave_codec.meshio import normalize
+
+    v, f = shape()
+    assert choose_surface(normalize(v)[0], f, "auto").mode == "all"
+
+
+def test_surface_all_and_auto_give_the_pinned_bytes(one_thread):
+    """The pinned cases above run with the default --surface auto; the same case with --surface all is the same
+    file."""
+    shape, options, digest, chamfer = CASES["points_fit"]
+    _check("points_fit_surface_all", (shape, {**options, "surface": "all"}, digest, chamfer))

@@ -149,6 +149,7 @@ def encode(
     layout: str = "fit",
     holes: str = "close",
     keep_creases: bool | None = None,
+    surface: str = "auto",
     options: EncodeOptions | None = None,
 ) -> EncodeResult:
     """Fit a TetWeave representation to a triangle mesh and return the `.tw` bytes and the decoded mesh.
@@ -180,6 +181,11 @@ def encode(
         both, and the better file).
     holes: "close" (every output watertight) or "keep" (an open input's holes stay open: the decoder removes the
         faces that span them, listed in the file; container version 2 only). See HOLES.
+    surface: what the fit takes as the input's surface (options.SURFACES, fit/visible.py): "all" its faces,
+        "visible" the faces offscreen renders see from outside (hidden parts and internal walls dropped, each face
+        oriented towards its views), "auto" the visible surface where the input needs it (inconsistent
+        orientation, hidden area), else all (the same bytes). Chamfer distances, --size and --max-error then
+        measure against that surface; stats["surface"] and stats["surface_reason"] say which and why.
     options: all of the above as one validated `options.EncodeOptions` (what the CLI and the batch workers pass);
         then no other option may be given (progress may).
     Deterministic: the same input, options, seed, device and thread count give the same bytes.
@@ -200,9 +206,18 @@ def encode(
         smoothing=smoothing,
         subdivision=subdivision,
         keep_creases=keep_creases,
+        surface=surface,
     )
     v, f = _validate(vertices, faces)
     prepared = prepare_input(v, f, seed=seed, keep_holes=holes == "keep")
+    if surface != "all":
+        from tetweave_codec.fit.visible import choose_surface
+
+        choice = choose_surface(prepared.normalized, prepared.faces, surface)
+        if choice.mode == "visible":
+            prepared = prepared.on_visible_surface(choice.surface, choice.reason)
+        else:
+            prepared.surface_reason = choice.reason
     if smoothing is None or subdivision is None or sh_degree is None or keep_creases is None:
         chosen = prepared_defaults(prepared)
         if container_version != 2:  # version 1 stores neither filter

@@ -192,6 +192,8 @@ class Job:
             "hole_faces": _hole_faces(full.container),
             "seconds": seconds,
             "chamfer": chamfer,
+            "surface": self.input.surface,
+            "surface_reason": self.input.surface_reason,
         }
         stats.update(extra or {})
         if measure and chamfer is None and len(out_f):

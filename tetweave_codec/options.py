@@ -23,8 +23,13 @@ LAYOUTS = ("fit", "grid", "best")
 # the input's boundary). Closed inputs decode closed either way.
 HOLES = ("close", "keep")
 SH_DEGREES = ("auto", "none", "0", "1", "2", "3")
-# Options added to EncodeOptions after batch manifests existed, with the value runs before them had.
-LATER_OPTIONS = {"layout": "fit", "holes": "close", "keep_creases": None}
+# What the fit takes as the input's surface (fit/visible.py): "all" its faces (the encode before --surface),
+# "visible" the faces offscreen renders see from outside, oriented towards the views, "auto" the visible surface
+# where the input needs it (inconsistent orientation, hidden area), else all of it (the same bytes as "all").
+SURFACES = ("auto", "visible", "all")
+# Options added to EncodeOptions after batch manifests existed, with the value runs before them had ("auto" gives
+# clean inputs the bytes of before).
+LATER_OPTIONS = {"layout": "fit", "holes": "close", "keep_creases": None, "surface": "auto"}
 
 
 def check_encode_arguments(
@@ -40,6 +45,7 @@ def check_encode_arguments(
     smoothing: int | None,
     subdivision: int | None,
     keep_creases: bool | None,
+    surface: str = "auto",
 ) -> None:
     """InputError (one line) for any option or combination `encoder.encode` cannot run, whatever the mesh.
 
@@ -68,6 +74,8 @@ def check_encode_arguments(
         raise InputError(f"the {layout} layout needs container version 2 and chooses its own quantization")
     if holes not in HOLES:
         raise InputError(f"holes must be one of {', '.join(HOLES)}, got {holes!r}")
+    if surface not in SURFACES:
+        raise InputError(f"surface must be one of {', '.join(SURFACES)}, got {surface!r}")
     if holes == "keep" and container_version != 2:
         raise InputError("keeping holes open needs container version 2")
     if layout == "best" and size is None and max_error is None:
@@ -101,7 +109,8 @@ class EncodeOptions:
     smoothing, subdivision: the decoder's Taubin steps and Loop levels (None = the encoder's default).
     keep_creases: the smoothing keeps the surface's creases (None = the encoder's default). layout:
     "fit", "grid" or "best" (LAYOUTS). holes: "close" or "keep" (HOLES: an open input's holes spanned, or kept
-    open). quality: a `fit.config.QUALITY` preset; iters: its main+late iterations (None = the preset's, scaled
+    open). surface: "auto", "visible" or "all" (SURFACES: what the fit takes as the input's surface). quality: a
+    `fit.config.QUALITY` preset; iters: its main+late iterations (None = the preset's, scaled
     with the points). device: "auto", "cpu" or "cuda". threads: torch CPU threads (0 = torch's default; applied by
     the CLI and the batch workers). measure: compute the Chamfer distance.
     """
@@ -110,6 +119,7 @@ class EncodeOptions:
     sh_degree: str = "auto"
     layout: str = "fit"
     holes: str = "close"
+    surface: str = "auto"
     quality: str = "default"
     iters: int | None = None
     size: int | None = None
@@ -154,6 +164,7 @@ class EncodeOptions:
             smoothing=self.smoothing,
             subdivision=self.subdivision,
             keep_creases=self.keep_creases,
+            surface=self.surface,
         )
 
     def as_dict(self) -> dict:
@@ -202,4 +213,5 @@ class EncodeOptions:
             smoothing=self.smoothing,
             subdivision=self.subdivision,
             keep_creases=self.keep_creases,
+            surface=self.surface,
         )

@@ -35,6 +35,8 @@ class PreparedInput:
     frame every fit works in (meshio.normalize); seed: the encode's seed (surface samples of the metrics). rim: the
     input's boundary prepared for hole caps (fit.holes.InputRim) when the encode keeps holes open and the input
     has some, else None. detail: rate control's detail measure D (rate_control.prior.input_detail), once measured.
+    surface: "all" (the input's faces) or "visible" (`on_visible_surface`: vertices, faces and normalized are then
+    the visible surface's, in the input's frame); surface_reason: why (the summary's phrase).
     """
 
     vertices: np.ndarray
@@ -45,6 +47,8 @@ class PreparedInput:
     seed: int = 0
     rim: InputRim | None = None
     detail: float | None = None
+    surface: str = "all"
+    surface_reason: str = ""
     _targets: dict = field(default_factory=dict, repr=False)
     _references: dict = field(default_factory=dict, repr=False)
 
@@ -86,6 +90,20 @@ class PreparedInput:
 
         return chamfer_to_reference(
             self.reference(n_samples), to_frame(vertices, self.scale, self.offset), faces, n_samples, self.seed
+        )
+
+    def on_visible_surface(self, visible, reason: str) -> PreparedInput:
+        """The same encode's input with the visible surface (fit.visible.VisibleSurface, normalized frame) in place
+        of the input's faces: the frame (scale, offset) stays the input's, so the file's transform is the same;
+        every consumer (start, 3-D term, band, metrics, rate control) then sees the visible surface."""
+        from tetweave_codec.fit.holes import input_rim
+
+        normalized = np.asarray(visible.vertices, dtype=np.float64)
+        faces = np.asarray(visible.faces, dtype=np.int64)
+        vertices = normalized * self.scale + self.offset
+        rim = input_rim(normalized, faces) if self.rim is not None else None
+        return PreparedInput(
+            vertices, faces, normalized, self.scale, self.offset, self.seed, rim, None, "visible", reason
         )
 
     def normalized_chamfer(self, vertices: np.ndarray, faces: np.ndarray, n_samples: int) -> float:

@@ -1,0 +1,311 @@
+"""The surface a viewer sees: the input's faces seen from outside in offscreen renders, oriented towards the views.
+
+Real assets are often not clean closed surfaces: parts hidden inside a housing, a second (inner) wall, primitives
+that overlap without a boolean union, faces with random orientation. A viewer shows them correctly; the winding
+number does not (it cancels on random orientation, counts hidden parts and internal walls as surface). This module
+renders the normalized input from VIEWS near-orthographic cameras on a Fibonacci sphere (no back-face culling:
+orientation-free) into face-id + depth buffers (render.rasterize) and derives:
+
+- which faces some view sees (the visible surface; hidden parts and internal walls drop out). A face counts as
+  seen when it covers a pixel centre in some view, or its centroid lies within DEPTH_TOLERANCE pixels of the depth
+  buffer there (faces smaller than a pixel). Before the test, faces longer than REFINE_PIXELS pixels are split at
+  their edge midpoints (up to MAX_REFINED_FACES faces), so a large face that another part cuts through (the seams
+  of overlapping primitives) keeps only its seen pieces, and no long strip inside the solid pulls the fit;
+- the orientation of each seen face: flipped when most views that see it see its back. The seen faces of a closed
+  shape are then an outward-oriented surface, and the winding number's sign (fit.initialize.signed_distance) is
+  that of the surface a viewer sees, whatever the input's own orientation;
+- `choose_surface`: whether the input needs the visible surface ("auto"): it does when, after welding by
+  position, its faces are not consistently oriented, or when more than HIDDEN_AREA_SHARE of its area is seen by
+  no view. Clean closed inputs (and open scans, whose holes show their insides: consistent orientation, little
+  hidden area) keep the whole input, exactly today's encode.
+
+A cavity that no outside view sees (the inside of a closed box) is not part of the visible surface.
+
+    surface = visible_surface(normalized, faces)     # VisibleSurface: vertices (V',3), faces (F',3), stats
+    choice = choose_surface(normalized, faces, "auto")  # SurfaceChoice(mode, reason, surface | None)
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from tetweave_codec.errors import InputError
+from tetweave_codec.geometry.triangles import face_areas, face_normals
+from tetweave_codec.options import SURFACES
+
+# Cameras on a Fibonacci sphere, far away with a narrow field of view (near-orthographic), looking at the origin;
+# the view cone holds the ball around the origin that holds the input, MARGIN larger.
+VIEWS = 32
+RESOLUTION = 384
+CAMERA_DISTANCE = 20.0
+MARGIN = 1.02
+VIEW_BATCH = 8  # views rasterized at once (memory: VIEW_BATCH x RESOLUTION^2 x ~40 bytes)
+# A face whose centroid lies at most this many pixels (world length at the origin) behind the plane of the face
+# the depth buffer holds at its pixel counts as seen there.
+DEPTH_TOLERANCE = 0.5
+# A point of a face counts as seen (depth test) only in views at least this far from edge-on: |cos| >= MIN_COS.
+MIN_COS = 0.3
+# Seen faces with a corner no view sees are split at most this many times (each child a quarter).
+REFINE_LEVELS = 5
+# Inputs with more faces than this are not rendered (InputError): the per-view arrays would exceed memory.
+MAX_FACES = 4_000_000
+# "auto" takes the visible surface when more than this share of the input's area is seen by no view.
+HIDDEN_AREA_SHARE = 0.01
+# Renders would exceed this many bytes of buffers per batch: fewer views per batch, then a lower resolution.
+MAX_BUFFER_BYTES = 1 << 30
+
+
+@dataclass(frozen=True)
+class VisibleSurface:
+    """The seen faces of the (refined) normalized input, each oriented towards the views that see it.
+
+    vertices (V',3) float64 (normalized frame), faces (F',3) int64; hidden_share: the input's area seen by no
+    view over its total area; flipped: seen faces turned to face their views; refined: faces after the split."""
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    hidden_share: float
+    flipped: int
+    refined: int
+
+
+@dataclass(frozen=True)
+class SurfaceChoice:
+    """What an encode fits: mode "visible" or "all", why (one phrase for the summary), and the visible surface when
+    the mode is "visible"."""
+
+    mode: str
+    reason: str
+    surface: VisibleSurface | None = None
+
+
+def _fov_deg(radius: float) -> float:
+    """Field of view whose cone holds the ball of `radius` (times MARGIN) around the origin."""
+    return 2.0 * math.degrees(math.asin(min(MARGIN * radius, 0.5 * CAMERA_DISTANCE) / CAMERA_DISTANCE))
+
+
+def _cameras(views: int, radius: float):
+    """Near-orthographic cameras on a Fibonacci sphere of radius CAMERA_DISTANCE (float32)."""
+    from tetweave_codec.render.cameras import fibonacci_cameras
+
+    return fibonacci_cameras(views, radius=CAMERA_DISTANCE, fov_deg=_fov_deg(radius))
+
+
+def pixel_size(resolution: int, radius: float) -> float:
+    """World length of one pixel at the origin's depth, for an input within `radius` of the origin."""
+    return 2.0 * CAMERA_DISTANCE * math.tan(math.radians(_fov_deg(radius)) / 2.0) / resolution
+
+
+def bounding_radius(vertices: np.ndarray, faces: np.ndarray) -> float:
+    """Largest distance from the origin of a vertex that a face uses (at least 1e-3)."""
+    return max(float(np.sqrt((vertices[np.unique(faces)] ** 2).sum(axis=1).max())), 1e-3)
+
+
+def _split(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each face (F,3) into four at its edge midpoints (new vertices appended, one per face edge): children
+    (4F,3), child k of face i at row 4i + k, each oriented as its parent."""
+    a, b, c = faces.T
+    n = len(vertices)
+    m = len(faces)
+    mids = np.concatenate(
+        [0.5 * (vertices[b] + vertices[c]), 0.5 * (vertices[c] + vertices[a]), 0.5 * (vertices[a] + vertices[b])]
+    )
+    ma, mb, mc = n + np.arange(m), n + m + np.arange(m), n + 2 * m + np.arange(m)
+    children = np.stack([np.stack(t, axis=1) for t in ((a, mc, mb), (mc, b, ma), (mb, ma, c), (ma, mb, mc))], axis=1)
+    return np.concatenate([vertices, mids]), children.reshape(-1, 3)
+
+
+@dataclass(frozen=True)
+class Renders:
+    """Visibility buffers of one mesh: face_id (B,H,W) int64 (-1 background), its vertices (V,3) and faces (F,3),
+    the cameras (render.Cameras, float64) and their eyes (B,3), and the depth tolerance tol (world length)."""
+
+    face_id: np.ndarray
+    vertices: np.ndarray
+    faces: np.ndarray
+    eyes: np.ndarray
+    cams: object
+    resolution: int
+    tol: float
+
+    def points_seen(self, points: np.ndarray, normals: np.ndarray | None = None) -> np.ndarray:
+        """(B,P) bool: whether view b sees the point (P,3) on the surface: it projects onto background, or at most
+        `tol` behind the plane of the face the buffer holds at its pixel, that plane extended to the point's exact
+        screen position (points of faces smaller than a pixel beside it on the same surface are seen, a wall
+        behind it is not). With `normals` (P,3) unit (the point's face), only views that see that face at least
+        MIN_COS away from edge-on count: a piece of a face next to a seam, seen edge-on, projects within a pixel
+        of the seam's far side although it lies inside the other part."""
+        import torch
+
+        res = self.resolution
+        out = np.zeros((len(self.eyes), len(points)), dtype=bool)
+        pts = torch.from_numpy(np.ascontiguousarray(points, dtype=np.float64))
+        for b in range(len(self.eyes)):
+            cam = self.cams[b]
+            cx, cy, cz = cam.project_planes(pts, res)[:, 0].numpy()
+            px = np.clip(np.floor(cx).astype(np.int64), 0, res - 1)
+            py = np.clip(np.floor(cy).astype(np.int64), 0, res - 1)
+            buf = self.face_id[b, py, px]
+            front = buf >= 0
+            tri = self.faces[buf[front]]  # (M,3) the buffer's faces
+            if 3 * len(tri) < len(self.vertices):  # project only their corners
+                corners = torch.from_numpy(self.vertices[tri.reshape(-1)])
+                x, y, z = cam.project_planes(corners, res)[:, 0].numpy().reshape(3, -1, 3)
+            else:
+                vproj = cam.project_planes(torch.from_numpy(self.vertices), res)[:, 0].numpy()  # (3,V)
+                x, y, z = (vproj[k][tri] for k in range(3))  # (M,3) each
+            d = (x[:, 1] - x[:, 0]) * (y[:, 2] - y[:, 0]) - (x[:, 2] - x[:, 0]) * (y[:, 1] - y[:, 0])
+            d = np.where(np.abs(d) > 1e-12, d, 1e-12)
+            qx, qy = cx[front] - x[:, 0], cy[front] - y[:, 0]
+            b1 = (qx * (y[:, 2] - y[:, 0]) - (x[:, 2] - x[:, 0]) * qy) / d
+            b2 = ((x[:, 1] - x[:, 0]) * qy - qx * (y[:, 1] - y[:, 0])) / d
+            inv = (1 - b1 - b2) / z[:, 0] + b1 / z[:, 1] + b2 / z[:, 2]  # 1/depth is affine in screen space
+            plane = np.where(inv > 0, 1.0 / np.where(inv > 0, inv, 1.0), np.inf)
+            out[b] = ~front
+            out[b, front] = cz[front] <= plane + self.tol
+            if normals is not None:
+                axis = self.cams.rotation[b, 2].numpy()  # the view's forward axis
+                out[b] &= np.abs(normals @ axis) >= MIN_COS
+        return out
+
+    def faces_seen(self, extra: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """(B,F) bool: view b sees face f (covers a pixel centre, or its centroid is seen: `points_seen`), and
+        `points_seen` of the points `extra` (P,3) (one pass over the views for both)."""
+        centroids = self.vertices[self.faces].mean(axis=1)
+        seen = self.points_seen(centroids, face_normals(self.vertices, self.faces))
+        extra_seen = self.points_seen(extra) if extra is not None else None
+        for b in range(len(seen)):
+            ids = self.face_id[b].reshape(-1)
+            seen[b, ids[ids >= 0]] = True
+        return seen, extra_seen
+
+
+def render(vertices: np.ndarray, faces: np.ndarray, views: int = VIEWS, resolution: int = RESOLUTION) -> Renders:
+    """Visibility buffers of the mesh (normalized frame) from `views` near-orthographic cameras, no culling."""
+    import torch
+
+    from tetweave_codec.render.rasterize import zbuffer
+
+    radius = bounding_radius(vertices, faces)
+    cams = _cameras(views, radius)
+    batch = max(1, min(VIEW_BATCH, MAX_BUFFER_BYTES // (16 * resolution * resolution)))
+    vt = torch.from_numpy(np.ascontiguousarray(vertices, dtype=np.float32))
+    ft = torch.from_numpy(np.ascontiguousarray(faces, dtype=np.int64))
+    ids = []
+    for start in range(0, views, batch):
+        planes = cams[start : start + batch].project_planes(vt, resolution)
+        ids.append(zbuffer(planes, ft, resolution, resolution).numpy())
+    tol = DEPTH_TOLERANCE * pixel_size(resolution, radius)
+    cams = cams.to(dtype=torch.float64)
+    return Renders(np.concatenate(ids), vertices, faces, cams.eye.numpy(), cams, resolution, tol)
+
+
+def visible_surface(vertices: np.ndarray, faces: np.ndarray) -> VisibleSurface:
+    """The faces of the normalized input (vertices (V,3), faces (F,3)) seen from outside, oriented towards their
+    views; seen faces with a corner no view sees (a seam where another part cuts through) are split at their edge
+    midpoints, up to REFINE_LEVELS times while longer than a pixel, keeping the seen children. InputError when no
+    face is seen (nothing a viewer would show)."""
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    area = face_areas(v, f)
+    keep = np.isfinite(area) & (area > 0) & np.isfinite(v[f]).all(axis=(1, 2))
+    if not keep.any():
+        raise InputError("mesh: no face has a visible area")
+    f = f[keep]
+    _check_size(len(f))
+    renders = render(v, f)
+    seen, corner_seen = renders.faces_seen(v)  # (B,F), (B,V)
+    corner_seen = corner_seen.any(axis=0)
+    # Orientation votes: views that see a face, +1 where they see its front, -1 its back.
+    normals = face_normals(v, f)
+    centroid = v[f].mean(axis=1)
+    votes = np.zeros(len(f))
+    for b, eye in enumerate(renders.eyes):
+        votes += np.where(seen[b], np.sign(np.einsum("fj,fj->f", normals, eye - centroid)), 0.0)
+    flip = votes < 0
+    any_seen = seen.any(axis=0)
+    area = face_areas(v, f)
+    total = float(area.sum())
+    hidden_share = float(area[~any_seen].sum() / total)
+    if not any_seen.any():
+        raise InputError("mesh: no face has a visible area")
+    oriented = f.copy()
+    oriented[flip] = oriented[flip][:, ::-1]
+    # Seams: seen faces with a corner no view sees, split while longer than a pixel. Each piece remembers its
+    # input face: the output keeps the input's face order (a clean input's faces come out as they went in).
+    pixel = pixel_size(renders.resolution, bounding_radius(v, f))
+    whole = any_seen & corner_seen[f].all(axis=1)
+    done = [(oriented[whole], np.flatnonzero(whole))]
+    part = any_seen & ~whole
+    todo, parent = oriented[part], np.flatnonzero(part)
+    out_v = v
+    for _ in range(REFINE_LEVELS):
+        if not len(todo):
+            break
+        longest = np.linalg.norm(out_v[todo] - out_v[np.roll(todo, 1, axis=1)], axis=2).max(axis=1)
+        small = longest <= pixel
+        done.append((todo[small], parent[small]))
+        out_v, children = _split(out_v, todo[~small])
+        parent = np.repeat(parent[~small], 4)
+        normals = face_normals(out_v, children)
+        child_seen = renders.points_seen(out_v[children].mean(axis=1), normals).any(axis=0)
+        children, parent, normals = children[child_seen], parent[child_seen], normals[child_seen]
+        corners = renders.points_seen(out_v[children].reshape(-1, 3), np.repeat(normals, 3, axis=0))
+        corners = corners.any(axis=0).reshape(-1, 3).all(axis=1)
+        done.append((children[corners], parent[corners]))
+        todo, parent = children[~corners], parent[~corners]
+    done.append((todo, parent))
+    out_f = np.concatenate([d[0] for d in done])
+    order = np.argsort(np.concatenate([d[1] for d in done]), kind="stable")
+    out_f = out_f[order]
+    # Midpoints of an edge both of whose faces were split are one vertex (the same float sum either way).
+    mids, weld = np.unique(out_v[len(v) :], axis=0, return_inverse=True)
+    out_f = np.concatenate([np.arange(len(v)), len(v) + weld.reshape(-1)])[out_f]
+    out_v = np.concatenate([v, mids])
+    used, inverse = np.unique(out_f, return_inverse=True)
+    return VisibleSurface(
+        out_v[used], inverse.reshape(-1, 3).astype(np.int64), hidden_share, int((flip & any_seen).sum()), len(out_f)
+    )
+
+
+def _check_size(n_faces: int) -> None:
+    """InputError when the (view, face) arrays of `n_faces` faces would exceed memory."""
+    if n_faces > MAX_FACES:
+        raise InputError(f"mesh: {n_faces:,} faces are more than the {MAX_FACES:,} the visible surface can render")
+
+
+def orientation_consistent(vertices: np.ndarray, faces: np.ndarray) -> bool:
+    """Whether, after welding vertices at equal positions, no directed edge is used by two faces (every shared
+    edge is traversed in opposite directions by its faces: a consistent orientation)."""
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    _, weld = np.unique(v, axis=0, return_inverse=True)
+    wf = weld.reshape(-1)[f]
+    wf = wf[(wf[:, 0] != wf[:, 1]) & (wf[:, 1] != wf[:, 2]) & (wf[:, 2] != wf[:, 0])]
+    directed = np.concatenate([wf[:, [0, 1]], wf[:, [1, 2]], wf[:, [2, 0]]])
+    _, counts = np.unique(directed, axis=0, return_counts=True)
+    return bool((counts <= 1).all())
+
+
+def choose_surface(vertices: np.ndarray, faces: np.ndarray, surface: str) -> SurfaceChoice:
+    """What the encode fits for `surface` in SURFACES, with its reason; vertices (V,3) normalized, faces (F,3).
+
+    "all": the whole input (no renders). "visible": the visible surface. "auto": the visible surface when the
+    input's orientation is inconsistent or more than HIDDEN_AREA_SHARE of its area is hidden, else the whole."""
+    if surface not in SURFACES:
+        raise InputError(f"surface must be one of {', '.join(SURFACES)}, got {surface!r}")
+    if surface == "all":
+        return SurfaceChoice("all", "as asked (--surface all)")
+    consistent = orientation_consistent(vertices, faces)
+    visible = visible_surface(vertices, faces)
+    hidden = f"{100 * visible.hidden_share:.1f} % of its area hidden from every view"
+    if surface == "visible":
+        return SurfaceChoice("visible", f"as asked (--surface visible); {hidden}", visible)
+    if not consistent:
+        return SurfaceChoice("visible", f"faces with inconsistent orientation; {hidden}", visible)
+    if visible.hidden_share > HIDDEN_AREA_SHARE:
+        return SurfaceChoice("visible", hidden, visible)
+    return SurfaceChoice("all", f"a consistently oriented surface, {hidden}")
