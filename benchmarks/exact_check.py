@@ -64,7 +64,7 @@ def _box_pairs(lo: np.ndarray, hi: np.ndarray, cap: int = 20_000_000) -> np.ndar
     if n < 2:
         return np.zeros((0, 2), np.int64)
     size = (hi - lo).max(axis=1)
-    cell = float(np.percentile(size, 75)) * 1.5
+    cell = float(np.percentile(size, 75))
     if not cell > 0:
         cell = float(size.max()) or 1.0
     while True:
@@ -91,23 +91,28 @@ def _box_pairs(lo: np.ndarray, hi: np.ndarray, cap: int = 20_000_000) -> np.ndar
     sizes = np.diff(np.concatenate([starts, [len(key)]]))
     out = []
     total = 0
-    group_end = np.repeat(starts + sizes, sizes)
     every = np.arange(len(key))
+    later = np.repeat(starts + sizes, sizes) - 1 - every  # elements after each one in its cell
+    pos = every[later > 0]
     # pairs within each cell: for each offset d, element e pairs with e + d while both are in the same cell
     for d in range(1, int(sizes.max())):
-        pos = every[every + d < group_end]
+        pos = pos[later[pos] >= d]
         if not len(pos):
             break
         a, b = owner[pos], owner[pos + d]
-        out.append(np.stack([np.minimum(a, b), np.maximum(a, b)], axis=1))
+        meet = np.all((lo[a] <= hi[b]) & (lo[b] <= hi[a]), axis=1)  # boxes that overlap, before the dedupe
+        a, b = a[meet], b[meet]
+        out.append(np.minimum(a, b) * n + np.maximum(a, b))  # one int64 key per pair
         total += len(pos)
         if total > cap:
             raise RuntimeError("exact_check: too many candidate pairs")
     if not out:
         return np.zeros((0, 2), np.int64)
-    pairs = np.unique(np.concatenate(out), axis=0)
-    keep = np.all((lo[pairs[:, 0]] <= hi[pairs[:, 1]]) & (lo[pairs[:, 1]] <= hi[pairs[:, 0]]), axis=1)
-    return pairs[keep]
+    keys = np.sort(np.concatenate(out))
+    if not len(keys):
+        return np.zeros((0, 2), np.int64)
+    keys = keys[np.concatenate([[True], keys[1:] != keys[:-1]])]
+    return np.stack([keys // n, keys % n], axis=1)
 
 
 # ------------------------------------------------------------------------------------------------------------
@@ -134,11 +139,10 @@ def _edge_misses(p, q, t, bound):
     return side | outside
 
 
-def _apart(ta, tb, free_a, free_b):
+def _apart(ta, tb, free_a, free_b, m):
     """(P,) True where triangles ta, tb (P, 3, 3) certainly meet nowhere beyond their shared vertex. free_*:
-    (P, 3) bool, the corners not shared (all of them for pairs sharing nothing)."""
-    six = np.concatenate([ta, tb], axis=1)
-    m = (six.max(axis=1) - six.min(axis=1)).max(axis=1)
+    (P, 3) bool, the corners not shared (all of them for pairs sharing nothing); m (P,): the pair's largest
+    coordinate spread (of the union of their boxes)."""
     bound = _FILTER * m * m * m
     apart = np.zeros(len(ta), bool)
     for x, y, free in ((ta, tb, free_a), (tb, ta, free_b)):
@@ -152,10 +156,10 @@ def _apart(ta, tb, free_a, free_b):
     if rest.any():
         ok = np.ones(rest.sum(), bool)
         for x, y, free in ((ta[rest], tb[rest], free_a[rest]), (tb[rest], ta[rest], free_b[rest])):
-            for i in range(3):
-                j = (i + 1) % 3
-                use = free[:, i] & free[:, j]
-                miss = _edge_misses(x[:, i], x[:, j], y, bound[rest])
+            for k in range(3):
+                k2 = (k + 1) % 3
+                use = free[:, k] & free[:, k2]
+                miss = _edge_misses(x[:, k], x[:, k2], y, bound[rest])
                 ok &= ~use | miss
         apart[np.flatnonzero(rest)[ok]] = True
     return apart
@@ -270,14 +274,17 @@ def check(vertices: np.ndarray, faces: np.ndarray) -> CheckResult:
     for i in unsure:
         degenerate[i] = _collinear(_ints(tri[i]))
     good = np.flatnonzero(~degenerate)
-    pairs = good[_box_pairs(tri[good].min(axis=1), tri[good].max(axis=1))] if len(good) > 1 else np.zeros((0, 2))
+    lo, hi = tri.min(axis=1), tri.max(axis=1)
+    pairs = good[_box_pairs(lo[good], hi[good])] if len(good) > 1 else np.zeros((0, 2))
     pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
     fa, fb = f[pairs[:, 0]], f[pairs[:, 1]]
     eq = fa[:, :, None] == fb[:, None, :]  # (P, 3, 3): corner i of a is corner j of b
     shared = eq.any(axis=2).sum(axis=1)
     pairs, eq = pairs[shared <= 1], eq[shared <= 1]
     free_a, free_b = ~eq.any(axis=2), ~eq.any(axis=1)
-    apart = _apart(tri[pairs[:, 0]], tri[pairs[:, 1]], free_a, free_b) if len(pairs) else np.zeros(0, bool)
+    i, j = pairs[:, 0], pairs[:, 1]
+    spread = (np.maximum(hi[i], hi[j]) - np.minimum(lo[i], lo[j])).max(axis=1)
+    apart = _apart(tri[i], tri[j], free_a, free_b, spread) if len(pairs) else np.zeros(0, bool)
     hits = []
     for k in np.flatnonzero(~apart):
         i, j = pairs[k]

@@ -21,18 +21,20 @@ section sizes and recomputes the CRC so that the mutation reaches the parsers be
 
 Every case decodes in a worker process (memory capped at ``--memory-gb``) with a time limit, through
 `decode_detailed` with the file's own backend flag; a decoded mesh must pass `marching_tets.check_manifold`
-(closed) and manifold3d, and a smoothed one must have no self-intersecting faces (unless the decoder kept the
-unsmoothed extraction); a file with a holes section (flags bit 7) must pass these on the surface before the holes
+(closed) and manifold3d; a file with a holes section (flags bit 7) must pass these on the surface before the holes
 were opened, and its result must be a 2-manifold with boundary (every edge of one or two faces, oriented, no
-pinched vertex). Outcomes: ``rejected``
+pinched vertex). Every decoded mesh, as returned (in the input's frame, whatever its filter), must then be free of
+self-intersections by the decoder's own check and by the independent exact one (benchmarks/exact_check.py:
+no two faces meet other than at a shared vertex, touching included). Outcomes: ``rejected``
 (ContainerError), ``closed`` (a non-empty closed 2-manifold), ``open`` (holes opened in one), ``empty`` (no
-surface: one sign only, or points spanning no volume), and the failures ``non_manifold``,
+surface: one sign only, or points spanning no volume), and the failures ``non_manifold``, ``self_intersecting``,
 ``error`` (any other exception, TopologyError included), ``timeout`` and ``crash`` (the worker died).
 Case i uses the generator ``numpy.random.default_rng([seed, i])``, so ``--only i`` replays one case.
 
     python -m tetweave_codec.benchmarks.fuzz --cases 10000
     python -m tetweave_codec.benchmarks.fuzz --cases 500 --files a.tw b.tw --out fuzz.md
     python -m tetweave_codec.benchmarks.fuzz --only 1234 -v
+    python -m tetweave_codec.benchmarks.fuzz --cases 10000 --files-only --files a.tw b.tw c.tw d.tw
 """
 
 from __future__ import annotations
@@ -60,7 +62,7 @@ from tetweave_codec.formats.common import (
 )
 from tetweave_codec.formats.tw2 import FIXED_SIZE, MAX_POINTS, header_size, pack_v2, quantize_file
 
-FAILURES = ("non_manifold", "error", "timeout", "crash")
+FAILURES = ("non_manifold", "self_intersecting", "error", "timeout", "crash")
 OUTCOMES = ("rejected", "closed", "open", "empty", *FAILURES)
 NO_RESEAL_SHARE = 0.05  # cases whose sizes and CRC are left as the mutations made them
 MAX_MUTATIONS = 3
@@ -400,14 +402,20 @@ def classify_result(result) -> tuple[str, str]:
 
     holes = result.container.holes
     if holes is None or not len(result.faces):
-        return _classify_closed(result)
-    outcome, detail = _classify_closed(replace(result, vertices=result.closed_vertices, faces=result.closed_faces))
-    if outcome != "closed":
-        return outcome, f"before the holes: {detail}"
-    problem = _open_problem(result.vertices, result.faces)
-    if problem:
-        return "non_manifold", problem
-    return "open", f"{detail}, {len(holes)} faces opened"
+        outcome, detail = _classify_closed(result)
+    else:
+        outcome, detail = _classify_closed(replace(result, vertices=result.closed_vertices, faces=result.closed_faces))
+        if outcome != "closed":
+            return outcome, f"before the holes: {detail}"
+        problem = _open_problem(result.vertices, result.faces)
+        if problem:
+            return "non_manifold", problem
+        outcome, detail = "open", f"{detail}, {len(holes)} faces opened"
+    if outcome in ("closed", "open"):
+        problem = crossing_problem(result.vertices, result.faces)
+        if problem:
+            return "self_intersecting", problem
+    return outcome, detail
 
 
 def _open_problem(v: np.ndarray, f: np.ndarray) -> str | None:
@@ -447,24 +455,26 @@ def _classify_closed(result) -> tuple[str, str]:
     status = manifold3d.Manifold(mesh).status()
     if status != manifold3d.Error.NoError:
         return "non_manifold", f"manifold3d: {status.name}"
-    c = result.container
-    if c.smoothing or c.subdivision:  # the decoder's filter is the one step that may move a face through another
-        from tetweave_codec.decoder import mesh_from_points
-        from tetweave_codec.geometry.intersections import self_intersecting_faces
-
-        # the decoder's own normalized-frame mesh (the transform back may round vertices together)
-        nv, nf = mesh_from_points(
-            c.points, c.s, c.c, c.sh_degree, result.backend, c.smoothing, c.subdivision, c.creases
-        )
-        try:
-            crossing = int(self_intersecting_faces(nv, nf).sum())
-        except RuntimeError:  # the decoder falls back to the unsmoothed surface in this case too
-            crossing = 0
-        # the filter must add no crossing: either none is left, or the decoder kept the unfiltered extraction
-        # (whose crossings, possible only with saturated SH terms that put vertices on points, are not its own)
-        if crossing and result.restored != len(nv):
-            return "non_manifold", f"{crossing} self-intersecting faces after smoothing / subdivision"
     return "closed", f"{result.backend} {result.container.num_points} points {len(f)} faces"
+
+
+def crossing_problem(v: np.ndarray, f: np.ndarray) -> str | None:
+    """Why the decoded mesh (v, f), as returned, is not free of self-intersections (None when it is): faces the
+    decoder's own check flags, or pairs of faces that meet other than at a shared vertex by the independent
+    exact check (benchmarks/exact_check.py, which shares no code with the decoder's)."""
+    from tetweave_codec.benchmarks.exact_check import check
+    from tetweave_codec.geometry.intersections import self_intersecting_faces
+
+    if len(f) < 2:
+        return None
+    try:
+        own = int(self_intersecting_faces(v, f).sum())
+    except RuntimeError:
+        own = -1  # the decoder's check cannot bound its work on the mesh it returned
+    found = check(v, f)
+    if own or len(found.pairs):
+        return f"{own} faces by the decoder's check, {len(found.pairs)} pairs meeting by the exact check"
+    return None
 
 
 def _worker(conn, memory_gb: float) -> None:
@@ -601,7 +611,8 @@ def report(result: Campaign, seeds: list[tuple[str, bytes]], cases: int, seed: i
     lines = [
         f"# Fuzz campaign: {total:,} structure-aware mutations of {len(seeds)} version-2 seed files (seed {seed})",
         "",
-        f"{result.seconds:.0f} s in all. Failures (non-manifold, other exceptions, timeouts, crashes): "
+        f"{result.seconds:.0f} s in all. Failures (non-manifold, self-intersecting, other exceptions, timeouts, "
+        "crashes): "
         f"**{result.failures}**.",
         "",
         "| outcome | cases | TetGen flag | Qhull flag |",
@@ -629,6 +640,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--cases", type=int, default=10_000)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--files", nargs="*", default=[], help="extra version-2 seed files (real encodes)")
+    parser.add_argument("--files-only", action="store_true", help="the --files alone, no analytic seed files")
     parser.add_argument("--max-points", type=int, default=3000, help="largest analytic seed file")
     parser.add_argument("--time-limit", type=float, default=DEFAULT_TIME_LIMIT)
     parser.add_argument("--memory-gb", type=float, default=DEFAULT_MEMORY_GB)
@@ -636,10 +648,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", help="write the Markdown report here")
     parser.add_argument("-v", "--verbose", action="store_true", help="one line per case")
     args = parser.parse_args(argv)
-    seeds = seed_files(args.seed, args.max_points)
+    seeds = [] if args.files_only else seed_files(args.seed, args.max_points)
     for path in args.files:
         with open(path, "rb") as fh:
-            seeds.append((path.rsplit("/", 1)[-1], fh.read()))
+            seeds.append(("/".join(path.split("/")[-2:]), fh.read()))  # folder/name: bench files share names
+    if not seeds:
+        parser.error("no seed files (--files-only needs --files)")
 
     def progress(i, outcome, detail, name, applied):
         if args.verbose or outcome in FAILURES:

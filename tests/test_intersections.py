@@ -151,6 +151,19 @@ def test_crossing_and_touching(path):
     assert I.self_intersecting_faces(v, np.zeros((0, 3), np.int64)).shape == (0,)
 
 
+def test_collinear_edges_apart_along_their_line(path):
+    """Fuzz case 454 (seed 0) in small: a face and its copy moved by twice an edge along that edge's line, so the
+    two edges are collinear with a gap between them. Their 2-D cross products are rounding noise around the
+    tolerance; the boxes of the segments decide (apart), as the exact check does."""
+    a = np.array([[1.839011399042957, -1.2303053259318735, -1.0593628955253582],
+                  [1.8390284276203848, -1.2309694404515494, -1.0575238091631791],
+                  [1.8421594987103265, -1.2346555806754376, -1.0613749234949899]])  # fmt: skip
+    v = np.concatenate([a, a + 2.0 * (a[1] - a[0])])
+    assert not I.self_intersecting_faces(v, np.array([[0, 1, 2], [3, 4, 5]])).any()
+    v[3:] = a + 0.5 * (a[1] - a[0])  # half an edge along it: the edges overlap, the faces meet
+    assert I.self_intersecting_faces(v, np.array([[0, 1, 2], [3, 4, 5]])).all()
+
+
 def test_a_corner_an_ulp_beyond_a_face_far_from_the_origin(path):
     """The issue's CAD case in small: coordinates ~300, a corner of one face half an ulp (2.8e-14) beyond a
     non-adjacent face's plane, or exactly on it: both count."""

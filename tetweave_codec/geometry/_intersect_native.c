@@ -125,14 +125,13 @@ static int point_in_closed_2d(const double *p, const double t[3][2], double tol2
     return !(pos && neg);
 }
 
-/* Closed segments pq and rs meet, up to tol2 (the reference's _segments_touch_2d). */
+/* Closed segments pq and rs meet, up to tol2, and their boxes overlap (the reference's _segments_touch_2d). */
 static int segments_touch_2d(const double *p, const double *q, const double *r, const double *s, double tol2) {
     double d1 = cross2(p, q, r), d2 = cross2(p, q, s);
     if ((d1 > tol2 && d2 > tol2) || (d1 < -tol2 && d2 < -tol2)) return 0;
     double d3 = cross2(r, s, p), d4 = cross2(r, s, q);
     if ((d3 > tol2 && d4 > tol2) || (d3 < -tol2 && d4 < -tol2)) return 0;
-    if (!(fabs(d1) <= tol2 && fabs(d2) <= tol2)) return 1;
-    for (int k = 0; k < 2; k++) { /* nearly collinear: the boxes overlap on both axes */
+    for (int k = 0; k < 2; k++) { /* and the boxes overlap on both axes (settles nearly collinear segments) */
         double lo = fmax(fmin(p[k], q[k]), fmin(r[k], s[k]));
         double hi = fmin(fmax(p[k], q[k]), fmax(r[k], s[k]));
         if (!(lo <= hi)) return 0;

@@ -159,8 +159,9 @@ def _point_in_closed_2d(p, t, tol):
 
 
 def _segments_touch_2d(p, q, r, s, tol):
-    """Closed segments pq and rs (P,2) meet, up to `tol` on each 2-D cross product; nearly collinear ones when
-    their boxes overlap on both axes."""
+    """Closed segments pq and rs (P,2) meet, up to `tol` on each 2-D cross product, and their boxes overlap on
+    both axes (a necessary condition of a common point, which settles nearly collinear segments: there the
+    cross products are rounding noise around the tolerance)."""
     d1, d2 = _cross2(p, q, r), _cross2(p, q, s)
     d3, d4 = _cross2(r, s, p), _cross2(r, s, q)
     apart = ((d1 > tol) & (d2 > tol)) | ((d1 < -tol) & (d2 < -tol))
@@ -170,8 +171,7 @@ def _segments_touch_2d(p, q, r, s, tol):
         lo = np.maximum(np.minimum(p[:, k], q[:, k]), np.minimum(r[:, k], s[:, k]))
         hi = np.minimum(np.maximum(p[:, k], q[:, k]), np.maximum(r[:, k], s[:, k]))
         boxes &= lo <= hi
-    collinear = (np.abs(d1) <= tol) & (np.abs(d2) <= tol)
-    return ~apart & (~collinear | boxes)
+    return ~apart & boxes
 
 
 def _segment_touches_in_plane(p, q, t, normal, tol2):
