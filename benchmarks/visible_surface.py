@@ -151,6 +151,7 @@ def main() -> None:
     ap = script_parser(__doc__.split("\n\n")[0])
     ap.add_argument("--sizes", default="5k", help="comma-separated --size values (k = 1024)")
     ap.add_argument("--kinds", default=",".join(KINDS))
+    ap.add_argument("--runs", default="clean,all,auto", help="which of clean, all, auto to encode")
     args = ap.parse_args()
     sizes = [int(float(s[:-1]) * 1024) if s.endswith("k") else int(s) for s in args.sizes.split(",")]
     rows = []
@@ -161,9 +162,12 @@ def main() -> None:
             messy, truth = build(kind, v, f0)
             for size in sizes:
                 runs = [("clean", truth, "auto"), ("all", messy, "all"), ("auto", messy, "auto")]
+                runs = [r for r in runs if r[0] in args.runs.split(",")]
                 for label, (mv, mf), surface in runs:
                     if label == "clean" and kind != "overlap" and rows and rows[-1][0] == path.stem:
-                        prior = [r for r in rows if r[0] == path.stem and r[2] == size and r[3] == "clean"]
+                        prior = [
+                            r for r in rows if r[:1] == (path.stem,) and r[1] != "overlap" and r[2:4] == (size, "clean")
+                        ]
                         if prior:  # the same clean mesh: measured once per size
                             rows.append((path.stem, kind, size, label, *prior[0][4:]))
                             print(*rows[-1], flush=True)

@@ -298,12 +298,14 @@ def choose_surface(vertices: np.ndarray, faces: np.ndarray, surface: str) -> Sur
     if surface not in SURFACES:
         raise InputError(f"surface must be one of {', '.join(SURFACES)}, got {surface!r}")
     if surface == "all":
-        return SurfaceChoice("all", "as asked (--surface all)")
+        return SurfaceChoice("all", "--surface all")
+    if surface == "auto" and len(faces) > MAX_FACES:
+        return SurfaceChoice("all", f"more than {MAX_FACES:,} faces, too many to render for the visible surface")
     consistent = orientation_consistent(vertices, faces)
     visible = visible_surface(vertices, faces)
     hidden = f"{100 * visible.hidden_share:.1f} % of its area hidden from every view"
     if surface == "visible":
-        return SurfaceChoice("visible", f"as asked (--surface visible); {hidden}", visible)
+        return SurfaceChoice("visible", f"--surface visible; {hidden}", visible)
     if not consistent:
         return SurfaceChoice("visible", f"faces with inconsistent orientation; {hidden}", visible)
     if visible.hidden_share > HIDDEN_AREA_SHARE:
