@@ -68,6 +68,7 @@ MAX_DENSITY = 4.0  # cap of the density relative to its mean (both ways)
 OVERSAMPLE_A = 6  # candidates per point wanted
 ANISO_OFF = 2.0  # --odt off-aniso: tets whose metric ratio is above this get no ODT
 REGION_RATIO = 2.0  # anisotropy statistics over elements whose metric ratio is at least this
+MIN_ELEMENTS = 20  # the table shows them where at least this many elements are in that region
 
 OPTS = {"mode": "aniso", "odt": "iso", "eps": EPS, "max_ratio": MAX_RATIO}
 STATE: dict = {}
@@ -695,7 +696,10 @@ def cmd_synth(args) -> None:
 
 
 def cmd_table(args) -> None:
-    rows = [json.loads(x) for p in args.files for x in open(p) if x.strip()]
+    by_key = {}
+    for r in (json.loads(x) for p in args.files for x in open(p) if x.strip()):
+        by_key[(r["mesh"], r["size"], r["points_arg"], r["mode"], r["odt"])] = r  # a repeated run: the last
+    rows = list(by_key.values())
     today = {(r["mesh"], r["size"]): r for r in rows if r["mode"] == "today"}
     print("| mesh | size | mode | ODT | bytes | Chamfer | NC | bytes x CD / today | points | faces | CPU s |"
           " tets ratio start / end (target) | control tris |")  # fmt: skip
@@ -708,11 +712,11 @@ def cmd_table(args) -> None:
         fit_s = (
             f"{st.get('measured', float('nan')):.2f} / {en.get('measured', float('nan')):.2f} "
             f"({en.get('target', float('nan')):.2f})"
-            if st.get("n")
+            if st.get("n", 0) >= MIN_ELEMENTS and en.get("n", 0) >= MIN_ELEMENTS
             else "-"
         )
         ac = r.get("aniso_control") or {}
-        ctl = f"{ac['measured']:.2f}" if ac.get("n") else "-"
+        ctl = f"{ac['measured']:.2f}" if ac.get("n", 0) >= MIN_ELEMENTS else "-"
         print(
             f"| {r['mesh']} | {r['size']} | {r['mode']} | {r['odt']} | {r['bytes']:,} | {r['chamfer']:.3e} | "
             f"{r['normal_consistency']:.4f} | {ratio} | {r['points']:,} | {r['faces']:,} | {r['cpu_s']:.0f} | "
