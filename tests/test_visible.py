@@ -103,3 +103,30 @@ def test_surface_option_is_checked():
     assert "surface" not in EncodeOptions().as_dict()  # batch manifests of before still match
     with pytest.raises(InputError, match="surface"):
         EncodeOptions(surface="outside")
+
+
+@pytest.mark.slow
+def test_encode_of_a_hidden_part_and_random_orientation_is_the_clean_file():
+    """The visible surface of a ball with a hidden ball inside, or with random face orientation, is the clean
+    ball's faces in its order: the encode writes the clean ball's bytes (the winding number failed on the second)."""
+    import torch
+
+    from tetweave_codec.encoder import encode
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        opts = {"points": 512, "quality": "fast", "iters": 20, "device": "cpu", "sh_degree": 0}
+        clean = ball(0.9, subdivisions=3)
+        ref = encode(*clean, **opts)
+        hidden = encode(*join(clean, ball(0.3, (0.1, 0.0, 0.0))), **opts)
+        assert hidden.stats["surface"] == "visible" and hidden.data == ref.data
+        v, f = clean
+        flip = np.random.default_rng(2).random(len(f)) < 0.5
+        f = f.copy()
+        f[flip] = f[flip][:, ::-1]
+        flipped = encode(v, f, **opts)
+        assert flipped.stats["surface"] == "visible" and flipped.data == ref.data
+        assert encode(*clean, surface="all", **opts).data == ref.data
+    finally:
+        torch.set_num_threads(before)
