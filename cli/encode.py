@@ -361,13 +361,11 @@ def _context_line(result, input_faces: int) -> str:
     plainly when either is smaller."""
     st = result.stats
     faces = f"decoded faces {st['faces']:,} = {st['faces'] / max(input_faces, 1):.2f}x the input's {input_faces:,}"
-    if st["chamfer"] is None or result.prepared is None or not st["faces"]:
-        return faces
     try:
-        from tetweave_codec.bench.anchor import classical_context
+        from tetweave_codec.bench.anchor import encode_context
     except ImportError:  # DracoPy and fast-simplification are dependencies; a broken install only loses the lines
         return faces
-    from tetweave_codec.packing import SUMMARY_CHAMFER_SAMPLES
-
-    context = classical_context(result.prepared, st["bytes"], st["chamfer"], st["faces"], SUMMARY_CHAMFER_SAMPLES)
+    context = encode_context(result)
+    if context is None:
+        return faces
     return "\n".join([f"{faces}; {context['lines'][0]}", context["lines"][1]])

@@ -240,3 +240,15 @@ def classical_context(prepared, file_bytes: int, chamfer: float, decoded_faces: 
         "lines": [draco.describe(file_bytes), decimated.describe(file_bytes)],
         "record": {"draco_bytes": draco.bytes, "decimate_draco_bytes": decimated.bytes},
     }
+
+
+def encode_context(result) -> dict | None:
+    """`classical_context` of an encode's result (encoder.EncodeResult) with the summary's metric, or None when
+    the result has nothing to compare (no Chamfer distance, no prepared input or no faces): the one call of the
+    encode summary and of the batch manifest."""
+    st = result.stats
+    if st["chamfer"] is None or result.prepared is None or not st["faces"]:
+        return None
+    from tetweave_codec.packing import SUMMARY_CHAMFER_SAMPLES
+
+    return classical_context(result.prepared, st["bytes"], st["chamfer"], st["faces"], SUMMARY_CHAMFER_SAMPLES)

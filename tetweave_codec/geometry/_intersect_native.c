@@ -202,6 +202,23 @@ static double pair_scale(const double *a[3], const double *b[3]) {
  * coordinates each) with normals na, nb, each (x1 - x0) x (x2 - x0); box_a, box_b their boxes. orient(x0, x1, x2,
  * y) is computed as n_x . (y - x0): the same operations in the same order as the reference's. nlen_a, nlen_b are
  * not used (the tolerances are the pair's, not the faces'). */
+/* Whether one face's free corners (orientations o against the other face's plane) all lie beyond `limit` on one
+ * side of it, for either face: the pair is then apart. */
+static int one_side_apart(const double *oa, const double *ob, const int *free_a, const int *free_b, double limit) {
+    for (int side = 0; side < 2; side++) {
+        const double *o = side ? ob : oa;
+        const int *fr = side ? free_b : free_a;
+        int above = 1, below = 1;
+        for (int i = 0; i < 3; i++)
+            if (fr[i]) {
+                above &= o[i] > limit;
+                below &= o[i] < -limit;
+            }
+        if (above || below) return 1;
+    }
+    return 0;
+}
+
 static int pair_intersects(const double *ta, const double *tb, const int64_t *fa, const int64_t *fb,
                            const double *na, const double *nb, const double *box_a, const double *box_b,
                            double nlen_a, double nlen_b) {
@@ -231,30 +248,10 @@ static int pair_intersects(const double *ta, const double *tb, const int64_t *fa
      * most pairs without the scale */
     double span = pair_span(box_a, box_b);
     double wide = TOUCH_3D * span * span * span;
-    for (int side = 0; side < 2; side++) {
-        const double *o = side ? ob : oa;
-        const int *fr = side ? free_b : free_a;
-        int above = 1, below = 1;
-        for (int i = 0; i < 3; i++)
-            if (fr[i]) {
-                above &= o[i] > wide;
-                below &= o[i] < -wide;
-            }
-        if (above || below) return 0;
-    }
+    if (one_side_apart(oa, ob, free_a, free_b, wide)) return 0;
     double scale = pair_scale(a, b);
     double tol = TOUCH_3D * scale * scale * scale, tol2 = TOUCH_2D * scale * scale;
-    for (int side = 0; side < 2; side++) {
-        const double *o = side ? ob : oa;
-        const int *fr = side ? free_b : free_a;
-        int above = 1, below = 1;
-        for (int i = 0; i < 3; i++)
-            if (fr[i]) {
-                above &= o[i] > tol;
-                below &= o[i] < -tol;
-            }
-        if (above || below) return 0;
-    }
+    if (one_side_apart(oa, ob, free_a, free_b, tol)) return 0;
     for (int i = 0; i < 3; i++) {
         int j = (i + 1) % 3;
         if (free_a[i] && free_a[j] && segment_touches(oa[i], oa[j], tol, tol2, a[i], a[j], b[0], b[1], b[2], nb))

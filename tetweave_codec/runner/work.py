@@ -96,15 +96,10 @@ def encode_file(task: Task) -> dict:
 def _classical_record(result) -> dict:
     """The encoder summary's classical context for a manifest record: {"draco_bytes", "decimate_draco_bytes"}
     (null where not measured)."""
-    st = result.stats
-    if st["chamfer"] is None or result.prepared is None or not st["faces"]:
-        return {"draco_bytes": None, "decimate_draco_bytes": None}
-    from tetweave_codec.bench.anchor import classical_context
-    from tetweave_codec.packing import SUMMARY_CHAMFER_SAMPLES
+    from tetweave_codec.bench.anchor import encode_context
 
-    return classical_context(result.prepared, st["bytes"], st["chamfer"], st["faces"], SUMMARY_CHAMFER_SAMPLES)[
-        "record"
-    ]
+    context = encode_context(result)
+    return context["record"] if context else {"draco_bytes": None, "decimate_draco_bytes": None}
 
 
 def decode_file(task: Task) -> dict:
