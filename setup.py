@@ -5,7 +5,8 @@
 * `tetweave_codec.geometry._mt_native` (tetweave_codec/geometry/_mt_native.c): the integer topology of marching
   tets; geometry/marching_tets.py is the reference.
 * `tetweave_codec.geometry._intersect_native` (tetweave_codec/geometry/_intersect_native.c): the self-intersection
-  test of the decoder's smoothing check; geometry/intersections.py is the reference.
+  test of the decoder's smoothing check, on pthreads when the caller asks for threads; geometry/intersections.py is
+  the reference.
 * `tetweave_codec.geometry._filter_native` (tetweave_codec/geometry/_filter_native.c): the decoder's Taubin steps,
   Loop levels and crease test; geometry/smoothing.py and geometry/subdivision.py are the reference.
 * `tetweave_codec._text_native` (tetweave_codec/_text_native.c): the rows of the OBJ and OFF writers; meshio.py is
@@ -21,6 +22,9 @@ import sys
 from setuptools import Extension, setup
 
 FLAGS = [] if sys.platform == "win32" else ["-O2", "-ffp-contract=off", "-fno-fast-math"]
+# _intersect_native.c runs its crossing check on pthreads when asked for threads (without pthreads, on Windows, it
+# runs them on the calling thread: same flags)
+THREAD_FLAGS = [] if sys.platform == "win32" else ["-pthread"]
 
 setup(
     ext_modules=[
@@ -36,7 +40,8 @@ setup(
             "tetweave_codec.geometry._intersect_native",
             ["tetweave_codec/geometry/_intersect_native.c"],
             depends=["tetweave_codec/geometry/_native_sort.h"],
-            extra_compile_args=FLAGS,
+            extra_compile_args=FLAGS + THREAD_FLAGS,
+            extra_link_args=THREAD_FLAGS,
             optional=True,
         ),
         Extension(

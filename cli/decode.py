@@ -14,6 +14,11 @@ from tetweave_codec.runner.inputs import is_batch
 
 DEFAULT_SUFFIX = ".decoded.obj"
 TW_SUFFIX = ".tw"
+# --threads in a batch when not given: one thread per worker, --jobs defaults to one worker per core (as encode's)
+BATCH_THREADS = 1
+# --threads' bound, cli.common.MAX_THREADS (not imported from there: cli/common.py imports the fit's settings, ~15
+# ms of dataclasses that a decode never uses)
+MAX_THREADS = 1024
 
 
 def default_output(path: Path) -> Path:
@@ -67,6 +72,13 @@ def echo_warnings(caught: list) -> None:
     "whole filter. Every level is watertight, 2-manifold and free of self-intersections; `tetweave info` shows "
     "the faces of each.",
 )
+@click.option(
+    "--threads",
+    type=click.IntRange(min=0, max=MAX_THREADS),
+    default=0,
+    help="Threads of the self-intersection check, a decode's largest part after Delaunay (0: every core). The mesh "
+    "is the same bytes on any count. Batch: per worker, 1 unless given.",
+)
 @jobs_option("(batch)")
 @click.option("--quiet", "-q", is_flag=True, help="Batch: no progress.")
 def decode(
@@ -75,6 +87,7 @@ def decode(
     delaunay: str,
     mesh_format_name: str,
     level: str,
+    threads: int,
     jobs: int | None,
     quiet: bool,
 ) -> None:
@@ -85,13 +98,15 @@ def decode(
     files) or @list.txt files decode in parallel (--jobs processes) into -o DIR; exit status 1 when any failed.
     """
     if is_batch(files) or jobs is not None:
-        _decode_batch(files, output, delaunay, mesh_format_name, jobs, quiet, level)
+        _decode_batch(files, output, delaunay, mesh_format_name, jobs, quiet, level, threads or BATCH_THREADS)
         return
-    _decode_one(Path(files[0]), output, delaunay, level)
+    _decode_one(Path(files[0]), output, delaunay, level, threads)
 
 
-def _decode_batch(files, output, delaunay: str, fmt: str, jobs: int | None, quiet: bool, level: str = "full") -> None:
-    """Several .tw files through tetweave_codec.runner (numpy only, like one file)."""
+def _decode_batch(
+    files, output, delaunay: str, fmt: str, jobs: int | None, quiet: bool, level: str = "full", threads: int = 1
+) -> None:
+    """Several .tw files through tetweave_codec.runner (numpy only, like one file), `threads` per worker."""
     from tetweave_codec.meshio import mesh_format
     from tetweave_codec.runner.executors import LocalExecutor, default_jobs
     from tetweave_codec.runner.work import decode_file
@@ -100,14 +115,14 @@ def _decode_batch(files, output, delaunay: str, fmt: str, jobs: int | None, quie
         fmt = mesh_format(f"decoded.{fmt}", for_writing=True)
     except InputError:
         raise InputError(f"--format {fmt}: use obj, ply, stl, off or glb") from None
-    workers = jobs or default_jobs(1)
+    workers = jobs or default_jobs(threads)
     run_files(
         "tetweave decode",
         files,
         output,
         extensions=(TW_SUFFIX,),
         suffix=f".{fmt}",
-        options={"format": fmt, "delaunay": delaunay, "level": level},
+        options={"format": fmt, "delaunay": delaunay, "level": level, "threads": threads},
         worker=decode_file,
         executor_factory=lambda: LocalExecutor(workers),
         use_manifest=False,
@@ -115,8 +130,8 @@ def _decode_batch(files, output, delaunay: str, fmt: str, jobs: int | None, quie
     )
 
 
-def _decode_one(file: Path, output: Path | None, delaunay: str, level: str = "full") -> None:
-    """One file in this process."""
+def _decode_one(file: Path, output: Path | None, delaunay: str, level: str = "full", threads: int = 0) -> None:
+    """One file in this process, its crossing checks on `threads` threads (0: every core)."""
     from tetweave_codec.decoder import decode_detailed
     from tetweave_codec.meshio import mesh_format, save_mesh
 
@@ -132,7 +147,7 @@ def _decode_one(file: Path, output: Path | None, delaunay: str, level: str = "fu
     start = time.perf_counter()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        result = decode_detailed(data, None if delaunay == "file" else delaunay, level=level)
+        result = decode_detailed(data, None if delaunay == "file" else delaunay, level=level, threads=threads)
     elapsed = time.perf_counter() - start
     echo_warnings(caught)
     if len(result.faces) == 0:

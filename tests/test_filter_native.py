@@ -241,3 +241,36 @@ def test_crease_edges_are_the_references(seed, monkeypatch):
     monkeypatch.setattr(smoothing, "NATIVE", False)
     for (mv, mf), (e, sharp) in zip(meshes, fast, strict=True):
         np.testing.assert_array_equal(sharp, smoothing.crease_edges(mv, mf, e))
+
+
+@needs_intersect
+@pytest.mark.parametrize("seed", range(2))
+def test_threaded_patch_check_and_restores_are_single_threaded(seed):
+    """`stars` of a Loop level (children 4), the full grid and the restore rounds (`marked`) on 2 and 4 threads flag
+    and restore exactly what one thread does, on a surface large enough that every loop splits into chunks (two
+    spheres with thin gaps, smoothed, jittered by 0.3 of an edge: folds inside patches and crossings between
+    them)."""
+    from tetweave_codec.geometry.surface_filter import restore_crossings
+
+    v0, f0 = marching_surface(seed, n=12_000, shape="spheres")
+    rng = np.random.default_rng(seed)
+    moved = jitter(smoothing.taubin(v0, f0, 1), f0, rng, 0.3)
+    v, reference, f = subdivision.loop_and_midpoint(moved, v0, f0, 1)
+    assert len(f) > 12_000
+    native = intersections._intersect_native
+    for only in (np.ones(len(f), bool), rng.random(len(f)) < 0.3):
+        single = np.zeros(len(f), np.uint8)
+        assert native.stars(v, f, single, only.view(np.uint8), 4, 1) == 0
+        assert single.any()
+        for threads in (2, 4):
+            out = np.zeros(len(f), np.uint8)
+            assert native.stars(v, f, out, only.view(np.uint8), 4, threads) == 0
+            np.testing.assert_array_equal(out, single)
+            full = np.zeros(len(f), np.uint8)
+            assert native.faces(v, f, full, only.view(np.uint8), threads) == 0
+            np.testing.assert_array_equal(full, single)
+    one = restore_crossings(v, reference, f, children=4, threads=1)
+    assert one[1] > 0 and not one[2]  # vertices restored over several checks, then clean
+    for threads in (2, 4):
+        many = restore_crossings(v, reference, f, children=4, threads=threads)
+        assert many[0].tobytes() == one[0].tobytes() and many[1:] == one[1:]

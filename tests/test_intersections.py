@@ -32,6 +32,7 @@ def both(v, f):
         reference = I.self_intersecting_faces(v, f)
     finally:
         I.NATIVE = saved
+    np.testing.assert_array_equal(reference, I.self_intersecting_faces(v, f, threads=4))
     return native, reference
 
 
@@ -221,3 +222,58 @@ def test_faces_whose_boxes_share_no_grid_cell(path):
     f = np.array([[0, 1, 2], [3, 4, 5]])
     assert not I.self_intersecting_faces(v, f).any()
     assert I._grid_pairs(v[[0, 3]], v[[1, 4]], 0.278)[0].shape == (0, 2)
+
+
+def small_soup(rng: np.random.Generator, n_faces: int) -> tuple[np.ndarray, np.ndarray]:
+    """n_faces triangles of ~1/30 of a unit cube, half of them sharing a corner with another, in a cube or on two
+    planes (coplanar and near-coplanar pairs): enough faces that every loop of the threaded check splits into
+    chunks, and thousands of them cross."""
+    centres = rng.uniform(0, 1, (n_faces, 1, 3))
+    centres[: n_faces // 3, 0, 2] = np.round(centres[: n_faces // 3, 0, 2])  # z = 0 or 1
+    corners = centres + rng.normal(0, 0.02, (n_faces, 3, 3))
+    corners[: n_faces // 3, :, 2] = centres[: n_faces // 3, :, 2] + rng.normal(0, 1e-12, (n_faces // 3, 3))
+    v = corners.reshape(-1, 3)
+    f = np.arange(3 * n_faces).reshape(-1, 3)
+    # half the faces take a corner of the next face in the same cell of side 1/20 (a neighbour: no long faces)
+    cell = np.floor(centres[:, 0] * 20).astype(np.int64)
+    order = np.lexsort(cell.T[::-1])
+    a, b = order[:-1], order[1:]
+    share = (cell[a] == cell[b]).all(axis=1) & (rng.random(len(a)) < 0.5)
+    f[a[share], 0] = f[b[share], 1]
+    return v, f
+
+
+@needs_native
+@pytest.mark.parametrize("seed", range(3))
+def test_threaded_checks_flag_the_single_threaded_faces(seed):
+    """The compiled checks on 2, 3 and 4 threads flag exactly the faces of one thread, on soups of 12,000 small
+    triangles with many crossings: the full grid (`faces`), the check of few marked faces (`marked`) and the
+    patch check with every face its own parent (`stars`, children 1); one thread also equals the reference."""
+    rng = np.random.default_rng(seed)
+    v, f = small_soup(rng, 12_000)
+    native = I._intersect_native
+    marks = {"all": np.ones(len(f), bool), "few": rng.random(len(f)) < 0.02, "some": rng.random(len(f)) < 0.3}
+    for name, only in marks.items():
+        u8 = only.view(np.uint8)
+        base = np.zeros(len(f), np.uint8)
+        assert native.faces(v, f, base, u8, 1) == 0
+        assert base.sum() > 200 or name == "few"
+        for threads in (2, 3, 4):
+            for entry in ("faces", "marked", "stars"):
+                out = np.zeros(len(f), np.uint8)
+                args = (v, f, out, u8) + ((1,) if entry == "stars" else ()) + (threads,)
+                status = getattr(native, entry)(*args)
+                single = np.zeros(len(f), np.uint8)
+                single_status = getattr(native, entry)(*(args[:2] + (single,) + args[3:-1] + (1,)))
+                assert status == single_status
+                np.testing.assert_array_equal(out, single)
+                if status == 0:
+                    np.testing.assert_array_equal(out, base)
+        np.testing.assert_array_equal(I.self_intersecting_faces(v, f, only=only, threads=2), base.astype(bool))
+    saved = I.NATIVE
+    try:
+        I.NATIVE = False
+        reference = I.self_intersecting_faces(v, f)
+    finally:
+        I.NATIVE = saved
+    np.testing.assert_array_equal(reference, I.self_intersecting_faces(v, f, threads=4))

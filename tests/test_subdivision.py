@@ -266,12 +266,12 @@ def test_encoder_keeps_the_smoothing_alone_when_the_decoder_drops_the_subdivided
 
     real = decoder.filter_surface
 
-    def never_settles(vertices, faces, smoothing, subdivision, creases=False, scale=1.0, offset=None):
+    def never_settles(vertices, faces, smoothing, subdivision, creases=False, scale=1.0, offset=None, threads=1):
         if subdivision:
             v = np.asarray(vertices, np.float64)
             out = v if offset is None else v * float(scale) + offset  # the output frame, as the decoder's
             return surface_filter.FilteredSurface(out, np.asarray(faces, np.int64), len(v), True)
-        return real(vertices, faces, smoothing, subdivision, creases, scale, offset)
+        return real(vertices, faces, smoothing, subdivision, creases, scale, offset, threads)
 
     monkeypatch.setattr(decoder, "filter_surface", never_settles)
     torch.set_num_threads(1)

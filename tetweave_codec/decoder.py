@@ -32,6 +32,7 @@ import numpy as np
 
 from tetweave_codec.geometry.delaunay import available_backends, tetrahedralize
 from tetweave_codec.geometry.holes import open_holes
+from tetweave_codec.geometry.intersections import resolve_threads
 from tetweave_codec.geometry.marching_tets import marching_tets_numpy
 from tetweave_codec.geometry.sh import check_degree, num_coeffs
 from tetweave_codec.geometry.surface_filter import filter_surface
@@ -104,6 +105,7 @@ def mesh_from_points(
     subdivision: int = 0,
     creases: bool = False,
     level: str = DEFAULT_LEVEL,
+    threads: int = 1,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Extract the TetWeave surface of a point cloud (in the frame of `points`).
 
@@ -117,11 +119,14 @@ def mesh_from_points(
         subdivision: Loop levels 0-2 after the smoothing (flags bits 5-6).
         creases: crease-preserving smoothing (bit 7 of the position-bits byte).
         level: "control", "smoothed" or "full" (the module docstring; ValueError for another name).
+        threads: threads of the self-intersection check (1: this thread; 0: every core); the same mesh on any count.
     Returns:
         vertices (V, 3) float64, faces (F, 3) int64 (outward; both empty when s has one sign only).
     """
     smoothing, subdivision = level_filter(smoothing, subdivision, level)
-    result = _extract(points, s, c, sh_degree, backend, {}, time.perf_counter, smoothing, subdivision, creases)
+    result = _extract(
+        points, s, c, sh_degree, backend, {}, time.perf_counter, smoothing, subdivision, creases, threads=threads
+    )
     return result.vertices, result.faces
 
 
@@ -135,8 +140,9 @@ class _Extracted(NamedTuple):
 
 
 def _extract(
-    points, s, c, sh_degree, backend, seconds, clock, smoothing=0, subdivision=0, creases=False, scale=1.0, offset=None
-) -> _Extracted:
+    points, s, c, sh_degree, backend, seconds, clock, smoothing=0, subdivision=0, creases=False, scale=1.0, offset=None,
+    threads=1,
+) -> _Extracted:  # fmt: skip
     """The closed surface and how it was made, timing each stage into `seconds`; its vertices in the output frame
     `v * scale + offset` (the frame of `points` when offset is None)."""
     check_degree(sh_degree)
@@ -156,7 +162,7 @@ def _extract(
     t1 = clock()
     mt = marching_tets_numpy(pts, tz.tets, s, coeffs, tz.hull_faces)
     t2 = clock()
-    out = filter_surface(mt.vertices, mt.faces, smoothing, subdivision, creases, scale, offset)
+    out = filter_surface(mt.vertices, mt.faces, smoothing, subdivision, creases, scale, offset, threads)
     seconds["delaunay"] = t1 - t0
     seconds["marching_tets"] = t2 - t1
     seconds["smoothing"] = clock() - t2
@@ -164,19 +170,24 @@ def _extract(
     return _Extracted(out.vertices, out.faces, tz, out.restored, mt.faces, children)
 
 
-def decode(data: bytes, backend: str | None = None, level: str = DEFAULT_LEVEL) -> tuple[np.ndarray, np.ndarray]:
+def decode(
+    data: bytes, backend: str | None = None, level: str = DEFAULT_LEVEL, threads: int = 1
+) -> tuple[np.ndarray, np.ndarray]:
     """Decode a `.tw` file to a triangle mesh in the original input's frame.
 
     Args:
         data: the file's bytes.
         backend: None (the backend recorded in the file) or an explicit override.
         level: "control", "smoothed" or "full" (default: the file's whole filter; the module docstring).
+        threads: threads of the self-intersection check, the filter's largest part (1: this thread, as in a
+            batch of one file per core; 0: every core this process may use). The same bytes on any count.
     Returns:
         vertices (V, 3) float64, faces (F, 3) int64.
     Raises:
-        ContainerError: malformed, truncated, corrupted or unsupported file. ValueError: an unknown level.
+        ContainerError: malformed, truncated, corrupted or unsupported file. ValueError: an unknown level or a
+        negative thread count.
     """
-    result = decode_detailed(data, backend, level=level)
+    result = decode_detailed(data, backend, level=level, threads=threads)
     return result.vertices, result.faces
 
 
@@ -202,12 +213,13 @@ def level_faces(data: bytes, backend: str | None = None) -> dict[str, int | None
 
 
 def decode_detailed(
-    data: bytes, backend: str | None = None, clock=time.perf_counter, level: str = DEFAULT_LEVEL
+    data: bytes, backend: str | None = None, clock=time.perf_counter, level: str = DEFAULT_LEVEL, threads: int = 1
 ) -> DecodeResult:
     """`decode` plus the parsed container, the backend used and per-stage timings measured with `clock`."""
     from tetweave_codec.formats.tw import unpack
 
     check_level(level)
+    threads = resolve_threads(threads)  # ValueError before any work
     seconds: dict[str, float] = {}
     t0 = clock()
     tw = unpack(data)
@@ -225,7 +237,7 @@ def decode_detailed(
     smoothing, subdivision = level_filter(tw.smoothing, tw.subdivision, level)
     ex = _extract(
         tw.points, tw.s, tw.c, tw.sh_degree, backend, seconds, clock, smoothing, subdivision, tw.creases,
-        float(tw.scale), np.asarray(tw.offset, dtype=np.float64),
+        float(tw.scale), np.asarray(tw.offset, dtype=np.float64), threads,
     )  # fmt: skip
     closed_v = ex.vertices
     vertices, faces = closed_v, ex.faces

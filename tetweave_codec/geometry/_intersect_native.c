@@ -3,8 +3,9 @@
  * operation in the reference's order (built with -ffp-contract=off, no -ffast-math), so both flag the same faces.
  *
  * faces(vertices (V,3) float64, faces (F,3) int64 (indices checked by the caller), flags (F,) uint8 out,
- * only (F,) uint8: test only pairs with a face marked here) -> int: 0 done, 1 the grid found no feasible cell
- * size (the reference raises RuntimeError there).
+ * only (F,) uint8: test only pairs with a face marked here[, threads int = 1]) -> int: 0 done, 1 the grid found no
+ * feasible cell size (the reference raises RuntimeError there). `marked` and `stars` below take the same optional
+ * thread count last; see "Threads".
  *
  * Candidate pairs: every pair of valid faces whose bounding boxes overlap (closed intervals); the grid groups
  * faces by the cells their boxes cover (cells sorted lexicographically by (x, y, z)) and tests a pair only in the
@@ -18,6 +19,111 @@
 #include <string.h>
 
 #include "_native_sort.h"
+
+/* ------------------------------------------------------------------------------------------------------------
+ * Threads. Every entry point takes a thread count (last argument, default 1). With 1 nothing here runs: each loop
+ * is one call over its whole range on the calling thread, today's single-threaded code. With more, the loops
+ * whose items are independent run in chunks on pthreads (the caller's thread among them), and the answer is the
+ * same bytes: the flags are an OR over the tested pairs (which thread tests a pair, and in which order, cannot
+ * change whether it crosses), written with relaxed atomic stores of 1 (a face flagged twice stays flagged); a skip
+ * that reads the flags ("both faces already flagged") only skips pairs that cannot add a flag. Sums are of
+ * integers (exact in any order), minima and maxima are merged in the serial loop's order, so every decision that
+ * depends on them is the serial one. Without pthreads (Windows builds) everything runs on the calling thread.
+ * ------------------------------------------------------------------------------------------------------------ */
+#if defined(_WIN32)
+#define TW_THREADS 0
+#else
+#include <pthread.h>
+#define TW_THREADS 1
+#endif
+/* more workers than this are never started (a --threads far above the cores only adds start-up and contention) */
+#define MAX_WORKERS 64
+
+#if TW_THREADS
+#define FLAG_GET(p) __atomic_load_n((p), __ATOMIC_RELAXED)
+#define FLAG_SET(p) __atomic_store_n((p), (uint8_t)1, __ATOMIC_RELAXED)
+#else
+#define FLAG_GET(p) (*(p))
+#define FLAG_SET(p) (*(p) = 1)
+#endif
+
+/* fn(ctx, begin, end, worker) over the chunks [begin, end) of [0, n) */
+typedef void (*RangeFn)(void *ctx, int64_t begin, int64_t end, int worker);
+
+typedef struct {
+    RangeFn fn;
+    void *ctx;
+    int64_t n, chunk, next; /* next: the first item no worker has taken yet */
+} ForJob;
+
+typedef struct {
+    ForJob *job;
+    int worker;
+} ForArg;
+
+static void for_run(ForJob *job, int worker) {
+    for (;;) {
+#if TW_THREADS
+        int64_t b = __atomic_fetch_add(&job->next, job->chunk, __ATOMIC_RELAXED);
+#else
+        int64_t b = job->next;
+        job->next += job->chunk;
+#endif
+        if (b >= job->n) return;
+        job->fn(job->ctx, b, b + job->chunk < job->n ? b + job->chunk : job->n, worker);
+    }
+}
+
+#if TW_THREADS
+static void *for_main(void *arg) {
+    ForArg *a = (ForArg *)arg;
+    for_run(a->job, a->worker);
+    return NULL;
+}
+#endif
+
+/* The workers a loop of n items in chunks of `chunk` gets from a thread count: at most one per chunk, at most
+ * MAX_WORKERS, at least 1. */
+static int workers_for(int threads, int64_t n, int64_t chunk) {
+    int64_t chunks = chunk > 0 ? (n + chunk - 1) / chunk : 1;
+    int64_t w = threads < 1 ? 1 : threads;
+    if (w > MAX_WORKERS) w = MAX_WORKERS;
+    if (w > chunks) w = chunks;
+    return w < 1 ? 1 : (int)w;
+}
+
+/* fn over [0, n) in chunks of `chunk` items, each chunk once, on `workers` threads (this one as worker 0; see
+ * workers_for), whichever is free taking the next chunk. One worker: fn(ctx, 0, n, 0), the serial loop. A thread
+ * that cannot be started leaves its chunks to the others. */
+static void parallel_for(int workers, int64_t n, int64_t chunk, RangeFn fn, void *ctx) {
+    if (n <= 0) return;
+    if (workers <= 1 || chunk <= 0 || n <= chunk) {
+        fn(ctx, 0, n, 0);
+        return;
+    }
+    ForJob job = {fn, ctx, n, chunk, 0};
+#if TW_THREADS
+    pthread_t tid[MAX_WORKERS];
+    ForArg args[MAX_WORKERS];
+    int started[MAX_WORKERS];
+    for (int w = 1; w < workers && w < MAX_WORKERS; w++) {
+        args[w].job = &job;
+        args[w].worker = w;
+        started[w] = pthread_create(&tid[w], NULL, for_main, &args[w]) == 0;
+    }
+    for_run(&job, 0);
+    for (int w = 1; w < workers && w < MAX_WORKERS; w++)
+        if (started[w]) pthread_join(tid[w], NULL);
+#else
+    for_run(&job, 0);
+#endif
+}
+
+/* The chunk that splits n items into `workers` contiguous blocks (block b = [b chunk, (b + 1) chunk)): loops whose
+ * per-block results are merged in block order afterwards. */
+static int64_t block_chunk(int64_t n, int workers) {
+    return workers > 1 ? (n + workers - 1) / workers : (n > 0 ? n : 1);
+}
 
 #define MAX_CANDIDATE_PAIRS 30000000LL
 /* `marked` counts the faces per cell of the first grid in a dense array of at most this many cells (2 bytes each) */
@@ -358,11 +464,11 @@ static double face_box(const double *p0, const double *p1, const double *p2, dou
     return x;
 }
 
-/* The arguments of faces_flags and marked_flags: vertices (V,3) float64, faces (F,3) int64, flags (F,) uint8 (the
- * output), only (F,) uint8; *nf = F. 0 with the four buffers held, or -1 with an exception set and none held. */
-static int get_face_buffers(PyObject *args, Py_buffer *bv, Py_buffer *bf, Py_buffer *bo, Py_buffer *bm, int64_t *nf) {
-    PyObject *ov, *of, *oo, *om;
-    if (!PyArg_ParseTuple(args, "OOOO", &ov, &of, &oo, &om)) return -1;
+/* The arguments of faces_flags, marked_flags and stars_flags: vertices (V,3) float64, faces (F,3) int64, flags (F,)
+ * uint8 (the output), only (F,) uint8; *nf = F. 0 with the four buffers held, or -1 with an exception set and none
+ * held. */
+static int get_face_buffers(PyObject *ov, PyObject *of, PyObject *oo, PyObject *om, Py_buffer *bv, Py_buffer *bf,
+                            Py_buffer *bo, Py_buffer *bm, int64_t *nf) {
     if (PyObject_GetBuffer(ov, bv, PyBUF_C_CONTIGUOUS) < 0) return -1;
     if (bv->itemsize != 8 || bv->len % 24) {
         PyBuffer_Release(bv);
@@ -405,45 +511,162 @@ static PyObject *face_check_result(Py_buffer *bv, Py_buffer *bf, Py_buffer *bo, 
     return PyLong_FromLong(status);
 }
 
+/* `faces`' first pass, over faces [begin, end): the valid ones' indices, normals, boxes and extents, written
+ * compacted from position `begin` of each array (block b's count in count[b]); the caller closes the gaps in
+ * block order, which gives the serial pass's arrays. */
+typedef struct {
+    const double *v;
+    const int64_t *f;
+    int64_t *valid, *count, chunk;
+    double *lo, *hi, *ext, *normal;
+} FacesPass;
+
+static void faces_pass(void *ctx, int64_t begin, int64_t end, int worker) {
+    (void)worker;
+    FacesPass *c = (FacesPass *)ctx;
+    const double *v = c->v;
+    const int64_t *f = c->f;
+    int64_t n = begin;
+    for (int64_t i = begin; i < end; i++) {
+        const double *p0 = v + 3 * f[3 * i], *p1 = v + 3 * f[3 * i + 1], *p2 = v + 3 * f[3 * i + 2];
+        double e1[3], e2[3], x[3];
+        sub3(p1, p0, e1);
+        sub3(p2, p0, e2);
+        cross3(e1, e2, x);
+        if (!(dot3(x, x) > 0)) continue;
+        c->valid[n] = i;
+        c->normal[3 * n] = x[0];
+        c->normal[3 * n + 1] = x[1];
+        c->normal[3 * n + 2] = x[2];
+        c->ext[n] = face_box(p0, p1, p2, c->lo + 3 * n, c->hi + 3 * n);
+        n++;
+    }
+    c->count[begin / c->chunk] = n - begin;
+}
+
+/* `faces`' pair loop over the grid's cells [begin, end) (cell k: entries cstart[k] .. cstart[k + 1] of e); each
+ * worker gathers a cell's faces into its own scratch (local, lcell, lids: `most` entries each per worker). */
+typedef struct {
+    const double *v, *lo, *hi, *normal;
+    const int64_t *f, *valid, *c0, *cstart;
+    const uint64_t *e;
+    const uint8_t *only;
+    uint8_t *flags;
+    uint64_t mask, dims_y, dims_z;
+    int fb;
+    int64_t most;
+    double *local;
+    uint64_t *lcell;
+    int64_t *lids;
+} FacesCells;
+
+static void faces_cells(void *ctx, int64_t begin, int64_t end, int worker) {
+    FacesCells *c = (FacesCells *)ctx;
+    const uint64_t *e = c->e, mask = c->mask, dims_y = c->dims_y, dims_z = c->dims_z;
+    const int64_t *valid = c->valid, *f = c->f;
+    const uint8_t *only = c->only;
+    double *local = c->local + 19 * c->most * worker; /* box 6, corners 9, normal 3, |normal| */
+    uint64_t *lcell = c->lcell + 3 * c->most * worker;
+    int64_t *lids = c->lids + 4 * c->most * worker; /* face, its 3 vertex indices */
+    for (int64_t k = begin; k < end; k++) {
+        int64_t s = c->cstart[k], r = c->cstart[k + 1];
+        uint64_t key = e[s] >> c->fb;
+        int any = 0; /* a cell without a face of interest has no pair to test */
+        for (int64_t i = s; i < r && !any; i++) any = only[valid[(int64_t)(e[i] & mask)]];
+        if (!any) continue;
+        for (int64_t i = s; i < r; i++) {
+            int64_t p = (int64_t)(e[i] & mask), o = i - s, face = valid[p];
+            double *box = local + 19 * o;
+            lids[4 * o] = face;
+            for (int d = 0; d < 3; d++) {
+                box[d] = c->lo[3 * p + d];
+                box[3 + d] = c->hi[3 * p + d];
+                box[15 + d] = c->normal[3 * p + d];
+                lcell[3 * o + d] = (uint64_t)c->c0[3 * p + d];
+                lids[4 * o + 1 + d] = f[3 * face + d];
+                for (int q = 0; q < 3; q++) box[6 + 3 * d + q] = c->v[3 * f[3 * face + d] + q];
+            }
+            box[18] = sqrt(dot3(box + 15, box + 15)); /* as the reference: sqrt(n . n) */
+        }
+        for (int64_t i = s; i < r; i++) {
+            const double *bp = local + 19 * (i - s);
+            const uint64_t *cp = lcell + 3 * (i - s);
+            const int64_t *ip = lids + 4 * (i - s);
+            for (int64_t j = i + 1; j < r; j++) {
+                const double *bq = local + 19 * (j - s);
+                const uint64_t *cq = lcell + 3 * (j - s);
+                /* test the pair once: in the cell of the larger lower corner (floor is monotone) */
+                uint64_t mx = cp[0] > cq[0] ? cp[0] : cq[0], my = cp[1] > cq[1] ? cp[1] : cq[1];
+                uint64_t mz = cp[2] > cq[2] ? cp[2] : cq[2];
+                /* branch-free: these tests go either way unpredictably, and most pairs fail one */
+                int keep = (((mx * dims_y + my) * dims_z + mz) == key) & (bp[0] <= bq[3]) & (bq[0] <= bp[3]) &
+                           (bp[1] <= bq[4]) & (bq[1] <= bp[4]) & (bp[2] <= bq[5]) & (bq[2] <= bp[5]);
+                if (!keep) continue;
+                /* a cell's entries are sorted by face: ip's face is the lower one */
+                const int64_t *iq = lids + 4 * (j - s);
+                int64_t fa = ip[0], fz = iq[0];
+                if (!only[fa] && !only[fz]) continue;
+                if (pair_intersects(bp + 6, bq + 6, ip + 1, iq + 1, bp + 15, bq + 15, bp, bq, bp[18], bq[18])) {
+                    FLAG_SET(c->flags + fa);
+                    FLAG_SET(c->flags + fz);
+                }
+            }
+        }
+    }
+}
+
+/* Faces per chunk of the first passes, and grid cells per chunk of the pair loops (small enough that the workers
+ * share the uneven cells evenly, large enough that taking a chunk costs nothing) */
+#define PASS_CHUNK 4096
+#define CELL_CHUNK 256
+#define PATCH_CHUNK 1024 /* vertices per chunk of `stars`' patches */
+
 static PyObject *faces_flags(PyObject *self, PyObject *args) {
     Py_buffer bv, bf, bo, bm;
     int64_t nf;
-    if (get_face_buffers(args, &bv, &bf, &bo, &bm, &nf) < 0) return NULL;
+    PyObject *ov, *of, *oo, *om;
+    int threads = 1;
+    if (!PyArg_ParseTuple(args, "OOOO|i", &ov, &of, &oo, &om, &threads)) return NULL;
+    if (get_face_buffers(ov, of, oo, om, &bv, &bf, &bo, &bm, &nf) < 0) return NULL;
     const uint8_t *only = (const uint8_t *)bm.buf;
     const double *v = (const double *)bv.buf;
     const int64_t *f = (const int64_t *)bf.buf;
     uint8_t *flags = (uint8_t *)bo.buf;
     memset(flags, 0, (size_t)nf);
     int status = 0;
-    int64_t *valid = NULL;
+    int64_t *valid = NULL, *counts = NULL, *cstart = NULL;
     double *lo = NULL, *hi = NULL, *ext = NULL;
     uint64_t *e = NULL, *lcell = NULL;
     int64_t *c0 = NULL, *lids = NULL;
     double *local = NULL, *normal = NULL;
     Py_BEGIN_ALLOW_THREADS;
-    valid = (int64_t *)malloc(sizeof(int64_t) * (size_t)(nf > 0 ? nf : 1));
-    lo = (double *)malloc(sizeof(double) * 3 * (size_t)(nf > 0 ? nf : 1));
-    hi = (double *)malloc(sizeof(double) * 3 * (size_t)(nf > 0 ? nf : 1));
-    ext = (double *)malloc(sizeof(double) * (size_t)(nf > 0 ? nf : 1));
-    normal = (double *)malloc(sizeof(double) * 3 * (size_t)(nf > 0 ? nf : 1));
-    if (!valid || !lo || !hi || !ext || !normal) {
+    size_t cap = (size_t)(nf > 0 ? nf : 1);
+    int pass_workers = workers_for(threads, nf, PASS_CHUNK);
+    int64_t chunk = block_chunk(nf, pass_workers);
+    valid = (int64_t *)malloc(sizeof(int64_t) * cap);
+    lo = (double *)malloc(sizeof(double) * 3 * cap);
+    hi = (double *)malloc(sizeof(double) * 3 * cap);
+    ext = (double *)malloc(sizeof(double) * cap);
+    normal = (double *)malloc(sizeof(double) * 3 * cap);
+    counts = (int64_t *)malloc(sizeof(int64_t) * (size_t)pass_workers);
+    if (!valid || !lo || !hi || !ext || !normal || !counts) {
         status = -1;
         goto done;
     }
+    FacesPass pass = {.v = v, .f = f, .valid = valid, .count = counts, .chunk = chunk, .lo = lo, .hi = hi, .ext = ext,
+                      .normal = normal};
+    parallel_for(pass_workers, nf, chunk, faces_pass, &pass);
     int64_t n = 0;
-    for (int64_t i = 0; i < nf; i++) {
-        const double *p0 = v + 3 * f[3 * i], *p1 = v + 3 * f[3 * i + 1], *p2 = v + 3 * f[3 * i + 2];
-        double e1[3], e2[3], c[3];
-        sub3(p1, p0, e1);
-        sub3(p2, p0, e2);
-        cross3(e1, e2, c);
-        if (!(dot3(c, c) > 0)) continue;
-        valid[n] = i;
-        normal[3 * n] = c[0];
-        normal[3 * n + 1] = c[1];
-        normal[3 * n + 2] = c[2];
-        ext[n] = face_box(p0, p1, p2, lo + 3 * n, hi + 3 * n);
-        n++;
+    for (int64_t b = 0; b * chunk < nf; b++) { /* close the gaps between the blocks, in block order */
+        int64_t from = b * chunk, m = counts[b];
+        if (from != n) {
+            memmove(valid + n, valid + from, sizeof(int64_t) * (size_t)m);
+            memmove(normal + 3 * n, normal + 3 * from, sizeof(double) * 3 * (size_t)m);
+            memmove(lo + 3 * n, lo + 3 * from, sizeof(double) * 3 * (size_t)m);
+            memmove(hi + 3 * n, hi + 3 * from, sizeof(double) * 3 * (size_t)m);
+            memmove(ext + n, ext + from, sizeof(double) * (size_t)m);
+        }
+        n += m;
     }
     if (nf < 2 || n < 2) goto done;
     /* cell = 2 median(extent); not > 0: max extent, or 1 */
@@ -486,74 +709,39 @@ static PyObject *faces_flags(PyObject *self, PyObject *args) {
         }
         cell *= (r == 1) ? 2.0 : 0.5;
     }
-    uint64_t mask = (((uint64_t)1) << fb) - 1, dims_y = (uint64_t)dims[1], dims_z = (uint64_t)dims[2];
-    /* per cell, its boxes' lower cells and bounds gathered contiguously (the pair loop is memory bound) */
-    int64_t most = 0;
+    /* the cells: runs of one key in the sorted entries, and the largest of them */
+    cstart = (int64_t *)malloc(sizeof(int64_t) * (size_t)(t + 1));
+    if (!cstart) {
+        status = -1;
+        goto done;
+    }
+    int64_t ncells = 0, most = 0;
     for (int64_t s = 0; s < t;) {
         int64_t r = s + 1;
         while (r < t && (e[r] >> fb) == (e[s] >> fb)) r++;
         if (r - s > most) most = r - s;
+        cstart[ncells++] = s;
         s = r;
     }
-    local = (double *)malloc(sizeof(double) * 19 * (size_t)most); /* box 6, corners 9, normal 3, |normal| */
-    lcell = (uint64_t *)malloc(sizeof(uint64_t) * 3 * (size_t)most);
-    lids = (int64_t *)malloc(sizeof(int64_t) * 4 * (size_t)most); /* face, its 3 vertex indices */
+    cstart[ncells] = t;
+    int cell_workers = workers_for(threads, ncells, CELL_CHUNK);
+    /* per cell, its boxes' lower cells and bounds gathered contiguously (the pair loop is memory bound) */
+    local = (double *)malloc(sizeof(double) * 19 * (size_t)most * (size_t)cell_workers);
+    lcell = (uint64_t *)malloc(sizeof(uint64_t) * 3 * (size_t)most * (size_t)cell_workers);
+    lids = (int64_t *)malloc(sizeof(int64_t) * 4 * (size_t)most * (size_t)cell_workers);
     if (!local || !lcell || !lids) {
         status = -1;
         goto done;
     }
-    for (int64_t s = 0; s < t;) {
-        int64_t r = s + 1;
-        uint64_t key = e[s] >> fb;
-        while (r < t && (e[r] >> fb) == key) r++;
-        int any = 0; /* a cell without a face of interest has no pair to test */
-        for (int64_t i = s; i < r && !any; i++) any = only[valid[(int64_t)(e[i] & mask)]];
-        if (!any) {
-            s = r;
-            continue;
-        }
-        for (int64_t i = s; i < r; i++) {
-            int64_t p = (int64_t)(e[i] & mask), o = i - s, face = valid[p];
-            double *box = local + 19 * o;
-            lids[4 * o] = face;
-            for (int k = 0; k < 3; k++) {
-                box[k] = lo[3 * p + k];
-                box[3 + k] = hi[3 * p + k];
-                box[15 + k] = normal[3 * p + k];
-                lcell[3 * o + k] = (uint64_t)c0[3 * p + k];
-                lids[4 * o + 1 + k] = f[3 * face + k];
-                for (int c = 0; c < 3; c++) box[6 + 3 * k + c] = v[3 * f[3 * face + k] + c];
-            }
-            box[18] = sqrt(dot3(box + 15, box + 15)); /* as the reference: sqrt(n . n) */
-        }
-        for (int64_t i = s; i < r; i++) {
-            const double *bp = local + 19 * (i - s);
-            const uint64_t *cp = lcell + 3 * (i - s);
-            const int64_t *ip = lids + 4 * (i - s);
-            for (int64_t j = i + 1; j < r; j++) {
-                const double *bq = local + 19 * (j - s);
-                const uint64_t *cq = lcell + 3 * (j - s);
-                /* test the pair once: in the cell of the larger lower corner (floor is monotone) */
-                uint64_t mx = cp[0] > cq[0] ? cp[0] : cq[0], my = cp[1] > cq[1] ? cp[1] : cq[1];
-                uint64_t mz = cp[2] > cq[2] ? cp[2] : cq[2];
-                /* branch-free: these tests go either way unpredictably, and most pairs fail one */
-                int keep = (((mx * dims_y + my) * dims_z + mz) == key) & (bp[0] <= bq[3]) & (bq[0] <= bp[3]) &
-                           (bp[1] <= bq[4]) & (bq[1] <= bp[4]) & (bp[2] <= bq[5]) & (bq[2] <= bp[5]);
-                if (!keep) continue;
-                /* a cell's entries are sorted by face: ip's face is the lower one */
-                const int64_t *iq = lids + 4 * (j - s);
-                int64_t fa = ip[0], fz = iq[0];
-                if (!only[fa] && !only[fz]) continue;
-                if (pair_intersects(bp + 6, bq + 6, ip + 1, iq + 1, bp + 15, bq + 15, bp, bq, bp[18], bq[18])) {
-                    flags[fa] = 1;
-                    flags[fz] = 1;
-                }
-            }
-        }
-        s = r;
-    }
+    FacesCells cells = {.v = v, .lo = lo, .hi = hi, .normal = normal, .f = f, .valid = valid, .c0 = c0,
+                        .cstart = cstart, .e = e, .only = only, .flags = flags, .mask = (((uint64_t)1) << fb) - 1,
+                        .dims_y = (uint64_t)dims[1], .dims_z = (uint64_t)dims[2], .fb = fb, .most = most,
+                        .local = local, .lcell = lcell, .lids = lids};
+    parallel_for(cell_workers, ncells, CELL_CHUNK, faces_cells, &cells);
 done:
     free(valid);
+    free(counts);
+    free(cstart);
     free(lo);
     free(hi);
     free(ext);
@@ -600,7 +788,8 @@ static void test_pair(const CheckFaces *s, int64_t a, int64_t b) {
         a = b;
         b = t;
     }
-    if (a == b || !s->valid[a] || !s->valid[b] || !(s->only[a] || s->only[b]) || (s->flags[a] && s->flags[b]))
+    if (a == b || !s->valid[a] || !s->valid[b] || !(s->only[a] || s->only[b]) ||
+        (FLAG_GET(s->flags + a) && FLAG_GET(s->flags + b)))
         return;
     double ta[9], tb[9], na[3], nb[3], ba[6], bb[6];
     face_corners_box(s, a, ta, ba);
@@ -609,8 +798,10 @@ static void test_pair(const CheckFaces *s, int64_t a, int64_t b) {
         return;
     face_normal(ta, na);
     face_normal(tb, nb);
-    if (pair_intersects(ta, tb, s->f + 3 * a, s->f + 3 * b, na, nb, ba, bb, sqrt(dot3(na, na)), sqrt(dot3(nb, nb))))
-        s->flags[a] = s->flags[b] = 1;
+    if (pair_intersects(ta, tb, s->f + 3 * a, s->f + 3 * b, na, nb, ba, bb, sqrt(dot3(na, na)), sqrt(dot3(nb, nb)))) {
+        FLAG_SET(s->flags + a);
+        FLAG_SET(s->flags + b);
+    }
 }
 
 /* The cells c (6: lower x y z, upper x y z) that the closed box lo (3,), hi (3,) covers on the lattice of side
@@ -626,13 +817,83 @@ static inline double cell_range(const double *lo, const double *hi, const double
     return span;
 }
 
+/* The count of first_grid_feasible over faces [begin, end): grid entries and pairs in cells, into the worker's
+ * sums. Shared counts (more than one worker) are atomic increments; whichever order they come in, a cell's
+ * increments see 0, 1, ..., its size - 1, so the pairs and the overflow test are those of the serial count. */
+typedef struct {
+    const CheckFaces *s;
+    const double *lo, *hi, *origin;
+    double cell, limit;
+    int64_t dims_y, dims_z;
+    uint16_t *counts;
+    int shared, failed; /* failed: a bound is crossed (shared: read and set atomically) */
+    double total[MAX_WORKERS];
+    long long pairs[MAX_WORKERS];
+} GridCount;
+
+static void grid_count(void *ctx, int64_t begin, int64_t end, int worker) {
+    GridCount *g = (GridCount *)ctx;
+    const CheckFaces *s = g->s;
+    double total = g->total[worker];
+    long long pairs = g->pairs[worker];
+    int ok = 1;
+    for (int64_t i = begin; i < end && ok; i++) {
+        if (!s->valid[i]) continue;
+#if TW_THREADS
+        if (g->shared && __atomic_load_n(&g->failed, __ATOMIC_RELAXED)) break;
+#endif
+        double corners[9], b[6];
+        if (g->lo) {
+            memcpy(b, g->lo + 3 * i, 3 * sizeof(double));
+            memcpy(b + 3, g->hi + 3 * i, 3 * sizeof(double));
+        } else {
+            face_corners_box(s, i, corners, b);
+        }
+        int64_t c[6];
+        total += cell_range(b, b + 3, g->origin, g->cell, c);
+        if (total > g->limit) {
+            ok = 0;
+            break;
+        }
+        for (int64_t x = c[0]; x <= c[3] && ok; x++)
+            for (int64_t y = c[1]; y <= c[4] && ok; y++)
+                for (int64_t z = c[2]; z <= c[5]; z++) {
+                    uint16_t *cnt = g->counts + (x * g->dims_y + y) * g->dims_z + z, before;
+#if TW_THREADS
+                    if (g->shared)
+                        before = __atomic_fetch_add(cnt, (uint16_t)1, __ATOMIC_RELAXED);
+                    else
+#endif
+                        before = (*cnt)++;
+                    if (before == UINT16_MAX) { /* a cell of 65536 faces (the dense count's limit) */
+                        ok = 0;
+                        break;
+                    }
+                    pairs += before;
+                }
+        if (pairs > MAX_CANDIDATE_PAIRS) ok = 0;
+    }
+    g->total[worker] = total;
+    g->pairs[worker] = pairs;
+    if (!ok) {
+#if TW_THREADS
+        __atomic_store_n(&g->failed, 1, __ATOMIC_RELAXED);
+#else
+        g->failed = 1;
+#endif
+    }
+}
+
 /* 1 when the reference's grid is feasible at its first cell size (`faces` then answers with the pair set; *cell
  * and dims (3,) are that lattice's), 0 when that is not known here, -1 out of memory. n valid faces, ext their
  * extents in face order, origin and top the corners of their boxes; lo, hi (F,3) the boxes when the caller keeps
- * them, else NULL (computed from the corners). Why the count decides: see `marked` below. */
+ * them, else NULL (computed from the corners). Why the count decides: see `marked` below. With several threads the
+ * faces are counted in chunks: the entries and pairs are sums of integers, and every bound is crossed by the
+ * total when it is crossed by a prefix of the serial loop (the increments are positive), so the answer is the
+ * serial one. */
 static int first_grid_feasible(const CheckFaces *s, const double *lo, const double *hi, int64_t nf, int64_t n,
                                const double *ext, const double *origin, const double *top, double *cell_out,
-                               int64_t *dims) {
+                               int64_t *dims, int threads) {
     double *sorted = (double *)malloc(sizeof(double) * (size_t)n);
     if (!sorted) return -1;
     double cell = first_cell(ext, sorted, n);
@@ -647,40 +908,33 @@ static int first_grid_feasible(const CheckFaces *s, const double *lo, const doub
     int cb = bit_length((uint64_t)dims[0]) + bit_length((uint64_t)dims[1]) + bit_length((uint64_t)dims[2]);
     if (bit_length((uint64_t)n) + cb > 63) return 0;
     if ((double)dims[0] * (double)dims[1] * (double)dims[2] > (double)MAX_DENSE_CELLS) return 0;
-    uint16_t *counts = (uint16_t *)calloc((size_t)(dims[0] * dims[1] * dims[2]), sizeof(uint16_t));
-    if (!counts) return -1;
-    double limit = 64.0 * (double)n + 1000000.0, total_cells = 0;
-    long long pairs = 0;
-    int ok = 1;
-    for (int64_t i = 0; i < nf && ok; i++) {
-        if (!s->valid[i]) continue;
-        double corners[9], b[6];
-        if (lo) {
-            memcpy(b, lo + 3 * i, 3 * sizeof(double));
-            memcpy(b + 3, hi + 3 * i, 3 * sizeof(double));
-        } else {
-            face_corners_box(s, i, corners, b);
-        }
-        int64_t c[6];
-        total_cells += cell_range(b, b + 3, origin, cell, c);
-        if (total_cells > limit) {
-            ok = 0;
-            break;
-        }
-        for (int64_t x = c[0]; x <= c[3] && ok; x++)
-            for (int64_t y = c[1]; y <= c[4] && ok; y++)
-                for (int64_t z = c[2]; z <= c[5]; z++) {
-                    uint16_t *cnt = counts + (x * dims[1] + y) * dims[2] + z;
-                    if (*cnt == UINT16_MAX) {
-                        ok = 0;
-                        break;
-                    }
-                    pairs += *cnt;
-                    (*cnt)++;
-                }
-        if (pairs > MAX_CANDIDATE_PAIRS) ok = 0;
+    GridCount *g = (GridCount *)calloc(1, sizeof(GridCount));
+    if (!g) return -1;
+    g->counts = (uint16_t *)calloc((size_t)(dims[0] * dims[1] * dims[2]), sizeof(uint16_t));
+    if (!g->counts) {
+        free(g);
+        return -1;
     }
-    free(counts);
+    int workers = workers_for(threads, nf, PASS_CHUNK);
+    g->s = s;
+    g->lo = lo;
+    g->hi = hi;
+    g->origin = origin;
+    g->cell = cell;
+    g->limit = 64.0 * (double)n + 1000000.0;
+    g->dims_y = dims[1];
+    g->dims_z = dims[2];
+    g->shared = workers > 1;
+    parallel_for(workers, nf, PASS_CHUNK, grid_count, g);
+    double total = 0;
+    long long pairs = 0;
+    for (int w = 0; w < workers; w++) {
+        total += g->total[w];
+        pairs += g->pairs[w];
+    }
+    int ok = !g->failed && total <= g->limit && pairs <= MAX_CANDIDATE_PAIRS;
+    free(g->counts);
+    free(g);
     return ok;
 }
 
@@ -706,6 +960,132 @@ static void face_data(const double *v, const int64_t *f, int64_t face, const dou
     d->nlen = sqrt(dot3(d->normal, d->normal));
 }
 
+/* A block of a first pass: its valid faces, marked ones among them, and the corners of their boxes. */
+typedef struct {
+    int64_t n, marked;
+    double origin[3], top[3];
+} BlockSum;
+
+/* Add a face's box to a block's sums (the serial pass's rule: the first valid face's corners, then strictly
+ * smaller / larger ones). */
+static inline void block_add(BlockSum *b, const double *lo, const double *hi) {
+    for (int k = 0; k < 3; k++) {
+        if (b->n == 0 || lo[k] < b->origin[k]) b->origin[k] = lo[k];
+        if (b->n == 0 || hi[k] > b->top[k]) b->top[k] = hi[k];
+    }
+    b->n++;
+}
+
+/* The blocks' sums merged in block order, which is the serial pass's result: the valid faces' extents moved
+ * together (block b's n values start at ext + b * stride), origin and top (the same rule), the total of valid and
+ * of marked faces. Returns the valid faces. */
+static int64_t merge_blocks(const BlockSum *sums, int64_t blocks, int64_t stride, double *ext, double *origin,
+                            double *top, int64_t *marked) {
+    int64_t n = 0;
+    *marked = 0;
+    for (int64_t b = 0; b < blocks; b++) {
+        const BlockSum *x = sums + b;
+        if (x->n == 0) continue;
+        if (b * stride != n) memmove(ext + n, ext + b * stride, sizeof(double) * (size_t)x->n);
+        for (int k = 0; k < 3; k++) {
+            if (n == 0 || x->origin[k] < origin[k]) origin[k] = x->origin[k];
+            if (n == 0 || x->top[k] > top[k]) top[k] = x->top[k];
+        }
+        n += x->n;
+        *marked += x->marked;
+    }
+    return n;
+}
+
+/* `marked`'s first pass over faces [begin, end) (one block): as `faces`, the valid faces, boxes and extents */
+typedef struct {
+    const double *v;
+    const int64_t *f;
+    const uint8_t *only;
+    uint8_t *valid;
+    double *lo, *hi, *ext;
+    int64_t chunk;
+    BlockSum *sums;
+} MarkedPass;
+
+static void marked_pass(void *ctx, int64_t begin, int64_t end, int worker) {
+    (void)worker;
+    MarkedPass *c = (MarkedPass *)ctx;
+    const double *v = c->v;
+    const int64_t *f = c->f;
+    BlockSum *b = c->sums + begin / c->chunk;
+    b->n = b->marked = 0;
+    for (int64_t i = begin; i < end; i++) {
+        const double *p0 = v + 3 * f[3 * i], *p1 = v + 3 * f[3 * i + 1], *p2 = v + 3 * f[3 * i + 2];
+        double e1[3], e2[3], x[3];
+        sub3(p1, p0, e1);
+        sub3(p2, p0, e2);
+        cross3(e1, e2, x);
+        c->valid[i] = dot3(x, x) > 0;
+        if (!c->valid[i]) continue;
+        c->ext[begin + b->n] = face_box(p0, p1, p2, c->lo + 3 * i, c->hi + 3 * i);
+        block_add(b, c->lo + 3 * i, c->hi + 3 * i);
+        b->marked += c->only[i] != 0;
+    }
+}
+
+/* `marked`'s pair loop over faces [begin, end): each face's box scans the marked faces listed in its cells */
+typedef struct {
+    const double *v, *lo, *hi, *origin;
+    const int64_t *f, *dims;
+    const uint8_t *valid, *only;
+    uint8_t *flags;
+    const uint64_t *hot;
+    const int32_t *head, *next, *who;
+    const FaceData *mk;
+    double cell;
+} MarkedLoop;
+
+static void marked_loop(void *ctx, int64_t begin, int64_t end, int worker) {
+    (void)worker;
+    const MarkedLoop *c = (const MarkedLoop *)ctx;
+    const int64_t *dims = c->dims;
+    const uint8_t *only = c->only;
+    uint8_t *flags = c->flags;
+    FaceData q;
+    for (int64_t i = begin; i < end; i++) {
+        if (!c->valid[i]) continue;
+        const double *ql = c->lo + 3 * i, *qh = c->hi + 3 * i;
+        int64_t r[6];
+        cell_range(ql, qh, c->origin, c->cell, r);
+        int have = 0;
+        for (int64_t x = r[0]; x <= r[3]; x++)
+            for (int64_t y = r[1]; y <= r[4]; y++)
+                for (int64_t z = r[2]; z <= r[5]; z++) {
+                    int64_t at = (x * dims[1] + y) * dims[2] + z;
+                    if (!(c->hot[at >> 6] >> (at & 63) & 1)) continue;
+                    for (int32_t e = c->head[at]; e > 0; e = c->next[e - 1]) {
+                        const FaceData *p = c->mk + c->who[e - 1];
+                        if (p->face == i || (only[i] && i > p->face)) continue; /* a marked pair from its lower face */
+                        int64_t mx = p->c0[0] > r[0] ? p->c0[0] : r[0], my = p->c0[1] > r[1] ? p->c0[1] : r[1];
+                        int64_t mz = p->c0[2] > r[2] ? p->c0[2] : r[2];
+                        if (mx != x || my != y || mz != z) continue; /* the pair's own cell */
+                        const double *pb = p->box;
+                        if (!(pb[0] <= qh[0] && ql[0] <= pb[3] && pb[1] <= qh[1] && ql[1] <= pb[4] && pb[2] <= qh[2] &&
+                              ql[2] <= pb[5]))
+                            continue;
+                        /* nothing left to learn from this pair */
+                        if (FLAG_GET(flags + i) && FLAG_GET(flags + p->face)) continue;
+                        if (!have) {
+                            face_data(c->v, c->f, i, c->lo, c->hi, &q);
+                            have = 1;
+                        }
+                        const FaceData *a = i < p->face ? &q : p, *b = i < p->face ? p : &q;
+                        if (pair_intersects(a->corners, b->corners, a->ids, b->ids, a->normal, b->normal, a->box,
+                                            b->box, a->nlen, b->nlen)) {
+                            FLAG_SET(flags + i);
+                            FLAG_SET(flags + p->face);
+                        }
+                    }
+                }
+    }
+}
+
 /* marked(vertices (V,3) float64, faces (F,3) int64, flags (F,) uint8 out, only (F,) uint8) -> 0: decided, flags
  * are exactly what faces(vertices, faces, flags, only) writes; 2: undecided (flags all 0: the caller runs `faces`).
  *
@@ -725,7 +1105,10 @@ static void face_data(const double *v, const int64_t *f, int64_t face, const dou
 static PyObject *marked_flags(PyObject *self, PyObject *args) {
     Py_buffer bv, bf, bo, bm;
     int64_t nf;
-    if (get_face_buffers(args, &bv, &bf, &bo, &bm, &nf) < 0) return NULL;
+    PyObject *ov, *of, *oo, *om;
+    int threads = 1;
+    if (!PyArg_ParseTuple(args, "OOOO|i", &ov, &of, &oo, &om, &threads)) return NULL;
+    if (get_face_buffers(ov, of, oo, om, &bv, &bf, &bo, &bm, &nf) < 0) return NULL;
     const uint8_t *only = (const uint8_t *)bm.buf;
     const double *v = (const double *)bv.buf;
     const int64_t *f = (const int64_t *)bf.buf;
@@ -736,6 +1119,7 @@ static PyObject *marked_flags(PyObject *self, PyObject *args) {
     uint64_t *hot = NULL; /* one bit per cell: some marked face covers it (fits a cache where head does not) */
     int32_t *head = NULL, *next = NULL, *who = NULL;
     FaceData *mk = NULL;
+    BlockSum *sums = NULL;
     Py_BEGIN_ALLOW_THREADS;
     memset(flags, 0, (size_t)nf);
     size_t cap = (size_t)(nf > 0 ? nf : 1);
@@ -747,24 +1131,18 @@ static PyObject *marked_flags(PyObject *self, PyObject *args) {
         status = -1;
         goto done;
     }
-    int64_t n = 0, k_marked = 0;
-    double origin[3] = {0, 0, 0}, top[3] = {0, 0, 0};
-    for (int64_t i = 0; i < nf; i++) { /* as `faces`: valid faces, their normals, boxes and extents */
-        const double *p0 = v + 3 * f[3 * i], *p1 = v + 3 * f[3 * i + 1], *p2 = v + 3 * f[3 * i + 2];
-        double e1[3], e2[3], c[3];
-        sub3(p1, p0, e1);
-        sub3(p2, p0, e2);
-        cross3(e1, e2, c);
-        valid[i] = dot3(c, c) > 0;
-        if (!valid[i]) continue;
-        double x = face_box(p0, p1, p2, lo + 3 * i, hi + 3 * i);
-        for (int k = 0; k < 3; k++) {
-            if (n == 0 || lo[3 * i + k] < origin[k]) origin[k] = lo[3 * i + k];
-            if (n == 0 || hi[3 * i + k] > top[k]) top[k] = hi[3 * i + k];
-        }
-        ext[n++] = x;
-        k_marked += only[i] != 0;
+    int pass_workers = workers_for(threads, nf, PASS_CHUNK);
+    int64_t chunk = block_chunk(nf, pass_workers), k_marked = 0;
+    sums = (BlockSum *)malloc(sizeof(BlockSum) * (size_t)pass_workers);
+    if (!sums) {
+        status = -1;
+        goto done;
     }
+    MarkedPass pass = {.v = v, .f = f, .only = only, .valid = valid, .lo = lo, .hi = hi, .ext = ext, .chunk = chunk,
+                       .sums = sums};
+    parallel_for(pass_workers, nf, chunk, marked_pass, &pass);
+    double origin[3] = {0, 0, 0}, top[3] = {0, 0, 0};
+    int64_t n = merge_blocks(sums, nf > 0 ? (nf + chunk - 1) / chunk : 0, chunk, ext, origin, top, &k_marked);
     if (nf < 2 || n < 2) { /* `faces` flags nothing */
         status = 0;
         goto done;
@@ -772,7 +1150,7 @@ static PyObject *marked_flags(PyObject *self, PyObject *args) {
     CheckFaces s = {v, f, valid, only, flags};
     double cell;
     int64_t dims[3];
-    int feasible = first_grid_feasible(&s, lo, hi, nf, n, ext, origin, top, &cell, dims);
+    int feasible = first_grid_feasible(&s, lo, hi, nf, n, ext, origin, top, &cell, dims, threads);
     if (feasible < 0) status = -1;
     if (feasible <= 0) goto done;
     int64_t ncells = dims[0] * dims[1] * dims[2];
@@ -822,44 +1200,13 @@ static PyObject *marked_flags(PyObject *self, PyObject *args) {
     /* decided: the first cell size is feasible, the answer is the pair set */
     status = 0;
     if (m == 0) goto done;
-    FaceData q;
-    for (int64_t i = 0; i < nf; i++) {
-        if (!valid[i]) continue;
-        const double *ql = lo + 3 * i, *qh = hi + 3 * i;
-        int64_t c[6];
-        cell_range(ql, qh, origin, cell, c);
-        int have = 0;
-        for (int64_t x = c[0]; x <= c[3]; x++)
-            for (int64_t y = c[1]; y <= c[4]; y++)
-                for (int64_t z = c[2]; z <= c[5]; z++) {
-                    int64_t at = (x * dims[1] + y) * dims[2] + z;
-                    if (!(hot[at >> 6] >> (at & 63) & 1)) continue;
-                    for (int32_t e = head[at]; e > 0; e = next[e - 1]) {
-                        const FaceData *p = mk + who[e - 1];
-                        if (p->face == i || (only[i] && i > p->face)) continue; /* a marked pair from its lower face */
-                        int64_t mx = p->c0[0] > c[0] ? p->c0[0] : c[0], my = p->c0[1] > c[1] ? p->c0[1] : c[1];
-                        int64_t mz = p->c0[2] > c[2] ? p->c0[2] : c[2];
-                        if (mx != x || my != y || mz != z) continue; /* the pair's own cell */
-                        const double *pb = p->box;
-                        if (!(pb[0] <= qh[0] && ql[0] <= pb[3] && pb[1] <= qh[1] && ql[1] <= pb[4] && pb[2] <= qh[2] &&
-                              ql[2] <= pb[5]))
-                            continue;
-                        if (flags[i] && flags[p->face]) continue; /* nothing left to learn from this pair */
-                        if (!have) {
-                            face_data(v, f, i, lo, hi, &q);
-                            have = 1;
-                        }
-                        const FaceData *a = i < p->face ? &q : p, *b = i < p->face ? p : &q;
-                        if (pair_intersects(a->corners, b->corners, a->ids, b->ids, a->normal, b->normal, a->box, b->box,
-                                            a->nlen, b->nlen)) {
-                            flags[i] = 1;
-                            flags[p->face] = 1;
-                        }
-                    }
-                }
-    }
+    MarkedLoop loop = {.v = v, .lo = lo, .hi = hi, .origin = origin, .f = f, .dims = dims, .valid = valid,
+                       .only = only, .flags = flags, .hot = hot, .head = head, .next = next, .who = who, .mk = mk,
+                       .cell = cell};
+    parallel_for(workers_for(threads, nf, PASS_CHUNK), nf, PASS_CHUNK, marked_loop, &loop);
 done:
     if (status == 2) memset(flags, 0, (size_t)nf);
+    free(sums);
     free(lo);
     free(hi);
     free(ext);
@@ -1024,65 +1371,32 @@ static int patch_certified(const CheckFaces *s, const ParentRec *recs, int group
     return winding == 1;
 }
 
-/* A parent as the grid's pair loop reads it: box (lo xyz, hi xyz), lower cell, vertex indices, marked child. */
+/* `stars`' pass over parents [begin, end) (one block): as `faces`, the valid faces, their boxes and extents (the
+ * reference's grid, merged by merge_blocks); each parent's record (runs checked to be Loop children) and box (its
+ * valid children's) */
 typedef struct {
-    double box[6];
-    int64_t c0[3], ids[3], id;
-    int interest;
-} CellParent;
-
-static PyObject *stars_flags(PyObject *self, PyObject *args) {
-    PyObject *ov, *of, *oo, *om;
+    const CheckFaces *s;
     int group;
-    if (!PyArg_ParseTuple(args, "OOOOi", &ov, &of, &oo, &om, &group)) return NULL;
-    if (group != 1 && group != 4) {
-        PyErr_SetString(PyExc_ValueError, "children: 1 or 4");
-        return NULL;
-    }
-    PyObject *four = PyTuple_Pack(4, ov, of, oo, om);
-    if (!four) return NULL;
-    Py_buffer bv, bf, bo, bm;
-    int64_t nf;
-    int got = get_face_buffers(four, &bv, &bf, &bo, &bm, &nf);
-    Py_DECREF(four);
-    if (got < 0) return NULL;
-    CheckFaces s;
-    s.v = (const double *)bv.buf;
-    s.f = (const int64_t *)bf.buf;
-    s.only = (const uint8_t *)bm.buf;
-    s.flags = (uint8_t *)bo.buf;
-    int status = 2;
-    uint8_t *valid = NULL, *interest = NULL;
-    double *ext = NULL, *gbox = NULL, *gext = NULL;
-    ParentRec *recs = NULL;
-    int64_t *vstart = NULL, *vfaces = NULL, *gc = NULL, *bucket = NULL;
-    int32_t *cstart = NULL;
-    CellParent *local = NULL;
-    Py_BEGIN_ALLOW_THREADS;
-    memset(s.flags, 0, (size_t)nf);
-    size_t cap = (size_t)(nf > 0 ? nf : 1);
-    valid = (uint8_t *)malloc(cap);
-    ext = (double *)malloc(sizeof(double) * cap);
-    if (!valid || !ext) {
-        status = -1;
-        goto done;
-    }
-    s.valid = valid;
-    int64_t n = 0, nv = (int64_t)(bv.len / 24), np = nf / group;
-    if (nf % group) goto done;
-    recs = (ParentRec *)malloc(sizeof(ParentRec) * (size_t)(np > 0 ? np : 1));
-    gbox = (double *)malloc(sizeof(double) * 6 * (size_t)(np > 0 ? np : 1));
-    interest = (uint8_t *)malloc((size_t)(np > 0 ? np : 1));
-    if (!recs || !gbox || !interest) {
-        status = -1;
-        goto done;
-    }
-    /* one pass over the faces, parent by parent: as `faces`, the valid faces, their boxes and extents (the
-     * reference's grid); each parent's record (runs checked to be Loop children) and box (its valid children's) */
-    double origin[3] = {0, 0, 0}, top[3] = {0, 0, 0};
-    int loop_runs = 1;
-    for (int64_t j = 0; j < np; j++) {
-        const int64_t *c = s.f + 3 * group * j;
+    int64_t chunk;
+    uint8_t *valid, *interest, *runs;
+    ParentRec *recs;
+    double *gbox, *ext;
+    BlockSum *sums;
+} StarsPass;
+
+static void stars_pass(void *ctx, int64_t begin, int64_t end, int worker) {
+    (void)worker;
+    StarsPass *sp = (StarsPass *)ctx;
+    const CheckFaces *s = sp->s;
+    const int group = sp->group;
+    uint8_t *valid = sp->valid, *interest = sp->interest;
+    ParentRec *recs = sp->recs;
+    double *gbox = sp->gbox, *ext = sp->ext;
+    BlockSum *sum = sp->sums + begin / sp->chunk;
+    int runs = 1;
+    sum->n = sum->marked = 0;
+    for (int64_t j = begin; j < end; j++) {
+        const int64_t *c = s->f + 3 * group * j;
         ParentRec *r = recs + j;
         if (group == 1) {
             r->ids[0] = c[0], r->ids[1] = c[1], r->ids[2] = c[2];
@@ -1091,7 +1405,7 @@ static PyObject *stars_flags(PyObject *self, PyObject *args) {
             int64_t m01 = c[1], m20 = c[2], m12 = c[5];
             r->ids[0] = c[0], r->ids[1] = c[4], r->ids[2] = c[8];
             r->mid[0] = m01, r->mid[1] = m12, r->mid[2] = m20;
-            if (c[3] != m01 || c[6] != m20 || c[7] != m12 || c[9] != m01 || c[10] != m12 || c[11] != m20) loop_runs = 0;
+            if (c[3] != m01 || c[6] != m20 || c[7] != m12 || c[9] != m01 || c[10] != m12 || c[11] != m20) runs = 0;
         }
         double unit[4][3], sum_u[3] = {0, 0, 0}, *gb = gbox + 6 * j;
         r->nsum[0] = r->nsum[1] = r->nsum[2] = 0;
@@ -1101,28 +1415,27 @@ static PyObject *stars_flags(PyObject *self, PyObject *args) {
         interest[j] = 2; /* no valid child: never a candidate of the parents' grid */
         for (int g = 0; g < group; g++) {
             int64_t face = group * j + g;
-            const double *p0 = s.v + 3 * s.f[3 * face], *p1 = s.v + 3 * s.f[3 * face + 1];
-            const double *p2 = s.v + 3 * s.f[3 * face + 2];
+            const double *p0 = s->v + 3 * s->f[3 * face], *p1 = s->v + 3 * s->f[3 * face + 1];
+            const double *p2 = s->v + 3 * s->f[3 * face + 2];
             double e1[3], e2[3], e3[3], nrm[3], b[6];
             sub3(p1, p0, e1);
             sub3(p2, p0, e2);
             cross3(e1, e2, nrm);
             double nn = dot3(nrm, nrm);
             valid[face] = nn > 0;
-            r->marked |= s.only[face];
+            r->marked |= s->only[face];
             if (!valid[face]) {
                 r->ok = 0;
                 continue;
             }
             double x = face_box(p0, p1, p2, b, b + 3);
             for (int k = 0; k < 3; k++) {
-                if (n == 0 || b[k] < origin[k]) origin[k] = b[k];
-                if (n == 0 || b[3 + k] > top[k]) top[k] = b[3 + k];
                 if (interest[j] == 2 || b[k] < gb[k]) gb[k] = b[k];
                 if (interest[j] == 2 || b[3 + k] > gb[3 + k]) gb[3 + k] = b[3 + k];
             }
-            ext[n++] = x;
-            interest[j] = (interest[j] == 2 ? 0 : interest[j]) | s.only[face];
+            ext[group * begin + sum->n] = x;
+            block_add(sum, b, b + 3);
+            interest[j] = (interest[j] == 2 ? 0 : interest[j]) | s->only[face];
             /* the cone of the children's unit normals and the margin they need (patch_certified) */
             sub3(p2, p1, e3);
             double nl = sqrt(nn), l1 = dot3(e1, e1), l2 = dot3(e2, e2), l3 = dot3(e3, e3);
@@ -1149,6 +1462,160 @@ static PyObject *stars_flags(PyObject *self, PyObject *args) {
         if (!(r->cos_t > 0)) r->ok = 0;
         r->sin_t = r->ok ? sqrt(1 - r->cos_t * r->cos_t) : 1;
     }
+    sp->runs[begin / sp->chunk] = (uint8_t)runs;
+}
+
+/* `stars`' patches of vertices [begin, end) (see patch_certified) */
+typedef struct {
+    const CheckFaces *s;
+    const ParentRec *recs;
+    const int64_t *vstart, *vfaces;
+    int group;
+} StarsPatches;
+
+static void stars_patches(void *ctx, int64_t begin, int64_t end, int worker) {
+    (void)worker;
+    const StarsPatches *c = (const StarsPatches *)ctx;
+    const ParentRec *recs = c->recs;
+    const int group = c->group;
+    for (int64_t u = begin; u < end; u++) {
+        const int64_t *pf = c->vfaces + c->vstart[u];
+        int64_t k = c->vstart[u + 1] - c->vstart[u], any = 0;
+        for (int64_t t = 0; t < k && !any; t++) any |= recs[pf[t]].marked;
+        if (!any || patch_certified(c->s, recs, group, u, pf, k)) continue;
+        for (int64_t t = 0; t < k; t++)
+            for (int g = 0; g < group; g++)
+                for (int64_t w = t; w < k; w++)
+                    for (int h = (w == t ? g + 1 : 0); h < group; h++)
+                        test_pair(c->s, group * pf[t] + g, group * pf[w] + h);
+    }
+}
+
+/* A parent as the grid's pair loop reads it: box (lo xyz, hi xyz), lower cell, vertex indices, marked child. */
+typedef struct {
+    double box[6];
+    int64_t c0[3], ids[3], id;
+    int interest;
+} CellParent;
+
+/* `stars`' pair loop over the parents' grid, cells [begin, end) (cell (x, y, z) is number (x dims_y + y) dims_z
+ * + z); each worker gathers a cell's parents into its own scratch (`most` entries per worker) */
+typedef struct {
+    const CheckFaces *s;
+    const ParentRec *recs;
+    const double *gbox;
+    const int64_t *gc, *bucket, *dims;
+    const int32_t *cstart;
+    const uint8_t *interest;
+    int group;
+    int64_t most;
+    CellParent *local;
+} StarsCells;
+
+static void stars_cells(void *ctx, int64_t begin, int64_t end, int worker) {
+    const StarsCells *c = (const StarsCells *)ctx;
+    const int group = c->group;
+    const int64_t *dims = c->dims;
+    CellParent *local = c->local + c->most * worker;
+    for (int64_t cid = begin; cid < end; cid++) {
+        int64_t s0 = c->cstart[cid], m = c->cstart[cid + 1] - s0;
+        if (m < 2) continue;
+        int64_t x = cid / (dims[1] * dims[2]), y = cid / dims[2] % dims[1], z = cid % dims[2];
+        for (int64_t i = 0; i < m; i++) {
+            int64_t p = c->bucket[s0 + i];
+            CellParent *l = local + i;
+            l->id = p;
+            l->interest = c->interest[p];
+            for (int k = 0; k < 3; k++) {
+                l->box[k] = c->gbox[6 * p + k];
+                l->box[3 + k] = c->gbox[6 * p + 3 + k];
+                l->c0[k] = c->gc[6 * p + k];
+                l->ids[k] = c->recs[p].ids[k];
+            }
+        }
+        for (int64_t i = 0; i < m; i++) {
+            const CellParent *lp = local + i;
+            for (int64_t j = i + 1; j < m; j++) {
+                const CellParent *lr = local + j;
+                const double *bp = lp->box, *br = lr->box;
+                /* branch-free: the pair once (in the cell of its larger lower corner), boxes overlap */
+                int keep = ((lp->c0[0] > lr->c0[0] ? lp->c0[0] : lr->c0[0]) == x) &
+                           ((lp->c0[1] > lr->c0[1] ? lp->c0[1] : lr->c0[1]) == y) &
+                           ((lp->c0[2] > lr->c0[2] ? lp->c0[2] : lr->c0[2]) == z) & (bp[0] <= br[3]) &
+                           (br[0] <= bp[3]) & (bp[1] <= br[4]) & (br[1] <= bp[4]) & (bp[2] <= br[5]) &
+                           (br[2] <= bp[5]) & ((lp->interest | lr->interest) != 0);
+                if (!keep) continue;
+                const int64_t *vp = lp->ids, *vr = lr->ids;
+                int touch = 0;
+                for (int q = 0; q < 3; q++) touch |= (vp[q] == vr[0]) | (vp[q] == vr[1]) | (vp[q] == vr[2]);
+                if (touch) continue; /* a patch's pair */
+                for (int g = 0; g < group; g++)
+                    for (int h = 0; h < group; h++) test_pair(c->s, group * lp->id + g, group * lr->id + h);
+            }
+        }
+    }
+}
+
+static PyObject *stars_flags(PyObject *self, PyObject *args) {
+    PyObject *ov, *of, *oo, *om;
+    int group, threads = 1;
+    if (!PyArg_ParseTuple(args, "OOOOi|i", &ov, &of, &oo, &om, &group, &threads)) return NULL;
+    if (group != 1 && group != 4) {
+        PyErr_SetString(PyExc_ValueError, "children: 1 or 4");
+        return NULL;
+    }
+    Py_buffer bv, bf, bo, bm;
+    int64_t nf;
+    if (get_face_buffers(ov, of, oo, om, &bv, &bf, &bo, &bm, &nf) < 0) return NULL;
+    CheckFaces s;
+    s.v = (const double *)bv.buf;
+    s.f = (const int64_t *)bf.buf;
+    s.only = (const uint8_t *)bm.buf;
+    s.flags = (uint8_t *)bo.buf;
+    int status = 2;
+    uint8_t *valid = NULL, *interest = NULL;
+    double *ext = NULL, *gbox = NULL, *gext = NULL;
+    ParentRec *recs = NULL;
+    int64_t *vstart = NULL, *vfaces = NULL, *gc = NULL, *bucket = NULL;
+    int32_t *cstart = NULL;
+    CellParent *local = NULL;
+    BlockSum *sums = NULL;
+    uint8_t *runs = NULL;
+    Py_BEGIN_ALLOW_THREADS;
+    memset(s.flags, 0, (size_t)nf);
+    size_t cap = (size_t)(nf > 0 ? nf : 1);
+    valid = (uint8_t *)malloc(cap);
+    ext = (double *)malloc(sizeof(double) * cap);
+    if (!valid || !ext) {
+        status = -1;
+        goto done;
+    }
+    s.valid = valid;
+    int64_t n = 0, nv = (int64_t)(bv.len / 24), np = nf / group;
+    if (nf % group) goto done;
+    recs = (ParentRec *)malloc(sizeof(ParentRec) * (size_t)(np > 0 ? np : 1));
+    gbox = (double *)malloc(sizeof(double) * 6 * (size_t)(np > 0 ? np : 1));
+    interest = (uint8_t *)malloc((size_t)(np > 0 ? np : 1));
+    if (!recs || !gbox || !interest) {
+        status = -1;
+        goto done;
+    }
+    /* one pass over the faces, parent by parent (stars_pass) */
+    int pass_workers = workers_for(threads, np, PASS_CHUNK / 4);
+    int64_t chunk = block_chunk(np, pass_workers), blocks = np > 0 ? (np + chunk - 1) / chunk : 0, k_marked;
+    sums = (BlockSum *)malloc(sizeof(BlockSum) * (size_t)pass_workers);
+    runs = (uint8_t *)malloc((size_t)pass_workers);
+    if (!sums || !runs) {
+        status = -1;
+        goto done;
+    }
+    StarsPass pass = {.s = &s, .group = group, .chunk = chunk, .valid = valid, .interest = interest, .runs = runs,
+                      .recs = recs, .gbox = gbox, .ext = ext, .sums = sums};
+    parallel_for(pass_workers, np, chunk, stars_pass, &pass);
+    double origin[3] = {0, 0, 0}, top[3] = {0, 0, 0};
+    n = merge_blocks(sums, blocks, group * chunk, ext, origin, top, &k_marked);
+    int loop_runs = 1;
+    for (int64_t b = 0; b < blocks; b++) loop_runs &= runs[b];
     if (nf < 2 || n < 2) { /* `faces` flags nothing */
         status = 0;
         goto done;
@@ -1156,7 +1623,7 @@ static PyObject *stars_flags(PyObject *self, PyObject *args) {
     if (!loop_runs) goto done;
     double fine_cell;
     int64_t fine_dims[3];
-    int feasible = first_grid_feasible(&s, NULL, NULL, nf, n, ext, origin, top, &fine_cell, fine_dims);
+    int feasible = first_grid_feasible(&s, NULL, NULL, nf, n, ext, origin, top, &fine_cell, fine_dims, threads);
     if (feasible < 0) status = -1;
     if (feasible <= 0) goto done;
     /* the parents around each vertex */
@@ -1174,17 +1641,8 @@ static PyObject *stars_flags(PyObject *self, PyObject *args) {
     for (int64_t u = nv; u > 0; u--) vstart[u] = vstart[u - 1];
     vstart[0] = 0;
     /* patches */
-    for (int64_t u = 0; u < nv; u++) {
-        const int64_t *pf = vfaces + vstart[u];
-        int64_t k = vstart[u + 1] - vstart[u], any = 0;
-        for (int64_t t = 0; t < k && !any; t++) any |= recs[pf[t]].marked;
-        if (!any || patch_certified(&s, recs, group, u, pf, k)) continue;
-        for (int64_t t = 0; t < k; t++)
-            for (int g = 0; g < group; g++)
-                for (int64_t w = t; w < k; w++)
-                    for (int h = (w == t ? g + 1 : 0); h < group; h++)
-                        test_pair(&s, group * pf[t] + g, group * pf[w] + h);
-    }
+    StarsPatches patches = {.s = &s, .recs = recs, .vstart = vstart, .vfaces = vfaces, .group = group};
+    parallel_for(workers_for(threads, nv, PATCH_CHUNK), nv, PATCH_CHUNK, stars_patches, &patches);
     /* parents sharing no vertex: a grid over their boxes */
     gext = (double *)malloc(sizeof(double) * (size_t)np);
     gc = (int64_t *)malloc(sizeof(int64_t) * 6 * (size_t)np);
@@ -1275,49 +1733,16 @@ static PyObject *stars_flags(PyObject *self, PyObject *args) {
     int64_t most = 0;
     for (int64_t i = 0; i < ncells; i++)
         if (cstart[i + 1] - cstart[i] > most) most = cstart[i + 1] - cstart[i];
-    local = (CellParent *)malloc(sizeof(CellParent) * (size_t)(most > 0 ? most : 1));
+    int cell_workers = workers_for(threads, ncells, CELL_CHUNK);
+    local = (CellParent *)malloc(sizeof(CellParent) * (size_t)(most > 0 ? most : 1) * (size_t)cell_workers);
     if (!local) {
         status = -1;
         goto done;
     }
-    for (int64_t x = 0; x < dims[0]; x++)
-        for (int64_t y = 0; y < dims[1]; y++)
-            for (int64_t z = 0; z < dims[2]; z++) {
-                int64_t cid = (x * dims[1] + y) * dims[2] + z, s0 = cstart[cid], m = cstart[cid + 1] - s0;
-                if (m < 2) continue;
-                for (int64_t i = 0; i < m; i++) {
-                    int64_t p = bucket[s0 + i];
-                    CellParent *l = local + i;
-                    l->id = p;
-                    l->interest = interest[p];
-                    for (int k = 0; k < 3; k++) {
-                        l->box[k] = gbox[6 * p + k];
-                        l->box[3 + k] = gbox[6 * p + 3 + k];
-                        l->c0[k] = gc[6 * p + k];
-                        l->ids[k] = recs[p].ids[k];
-                    }
-                }
-                for (int64_t i = 0; i < m; i++) {
-                    const CellParent *lp = local + i;
-                    for (int64_t j = i + 1; j < m; j++) {
-                        const CellParent *lr = local + j;
-                        const double *bp = lp->box, *br = lr->box;
-                        /* branch-free: the pair once (in the cell of its larger lower corner), boxes overlap */
-                        int keep = ((lp->c0[0] > lr->c0[0] ? lp->c0[0] : lr->c0[0]) == x) &
-                                   ((lp->c0[1] > lr->c0[1] ? lp->c0[1] : lr->c0[1]) == y) &
-                                   ((lp->c0[2] > lr->c0[2] ? lp->c0[2] : lr->c0[2]) == z) & (bp[0] <= br[3]) &
-                                   (br[0] <= bp[3]) & (bp[1] <= br[4]) & (br[1] <= bp[4]) & (bp[2] <= br[5]) &
-                                   (br[2] <= bp[5]) & ((lp->interest | lr->interest) != 0);
-                        if (!keep) continue;
-                        const int64_t *vp = lp->ids, *vr = lr->ids;
-                        int touch = 0;
-                        for (int c = 0; c < 3; c++) touch |= (vp[c] == vr[0]) | (vp[c] == vr[1]) | (vp[c] == vr[2]);
-                        if (touch) continue; /* a patch's pair */
-                        for (int g = 0; g < group; g++)
-                            for (int h = 0; h < group; h++) test_pair(&s, group * lp->id + g, group * lr->id + h);
-                    }
-                }
-            }
+    StarsCells cells = {.s = &s, .recs = recs, .gbox = gbox, .gc = gc, .bucket = bucket, .cstart = cstart,
+                        .interest = interest, .dims = dims, .group = group, .most = most > 0 ? most : 1,
+                        .local = local};
+    parallel_for(cell_workers, ncells, CELL_CHUNK, stars_cells, &cells);
     status = 0;
 done:
     if (status == 2) memset(s.flags, 0, (size_t)nf);
@@ -1333,6 +1758,8 @@ done:
     free(cstart);
     free(bucket);
     free(local);
+    free(sums);
+    free(runs);
     Py_END_ALLOW_THREADS;
     return face_check_result(&bv, &bf, &bo, &bm, status);
 }

@@ -33,6 +33,21 @@ except ImportError:  # not built: the numpy code below
 NATIVE = _intersect_native is not None and os.environ.get("TETWEAVE_NATIVE", "1") != "0"
 
 
+def resolve_threads(threads: int) -> int:
+    """A thread count as the checks run it: `threads` itself, or for 0 the cores this process may use (its CPU
+    affinity where the OS has one). ValueError for a negative count or a non-integer."""
+    if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)):
+        raise ValueError(f"threads must be a whole number >= 0, got {threads!r}")
+    if threads < 0:
+        raise ValueError(f"threads must be >= 0 (0: every core), got {threads}")
+    if threads:
+        return int(threads)
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # macOS, Windows
+        return max(1, os.cpu_count() or 1)
+
+
 # `only` marking at most 1/MARKED_SHARE of the faces: the compiled path's short way first (the decoder's later
 # checks mark a few hundred of 320K faces; the short way's hash grid is slower than the full grid for many)
 MARKED_SHARE = 8
@@ -242,7 +257,7 @@ def _pairs_intersect(t1: np.ndarray, t2: np.ndarray, free1: np.ndarray, free2: n
 
 
 def self_intersecting_faces(
-    vertices: np.ndarray, faces: np.ndarray, only: np.ndarray | None = None, children: int = 1
+    vertices: np.ndarray, faces: np.ndarray, only: np.ndarray | None = None, children: int = 1, threads: int = 1
 ) -> np.ndarray:
     """Boolean mask (F,) of faces that properly intersect another face (see the module docstring).
 
@@ -261,6 +276,9 @@ def self_intersecting_faces(
     same answer, or no answer (the runs are not Loop children, a grid would be too large), and then `faces` runs.
     (`stars` also takes single faces as their own parents, but there it saves only the fold tests and is no
     faster than `faces`: fandisk's 40 KB smoothed surface, 57 ms against 75.)
+
+    threads: threads of the compiled path (1: the calling thread alone; 0: every core this process may use, see
+    `resolve_threads`). The flags are the same on any count (the C file says why); the numpy path ignores it.
     """
     v = np.ascontiguousarray(vertices, dtype=np.float64).reshape(-1, 3)
     f = np.ascontiguousarray(faces, dtype=np.int64).reshape(-1, 3)
@@ -269,15 +287,16 @@ def self_intersecting_faces(
     mark = np.ones(len(f), dtype=bool) if only is None else np.asarray(only, dtype=bool).reshape(-1)
     if mark.shape != (len(f),):
         raise ValueError("only must be one flag per face")
+    workers = resolve_threads(threads)
     if NATIVE:
         flags = np.zeros(len(f), dtype=np.uint8)
         only_u8 = np.ascontiguousarray(mark).view(np.uint8)
         if only is not None and MARKED_SHARE * int(mark.sum()) <= len(f):
-            if _intersect_native.marked(v, f, flags, only_u8) == 0:
+            if _intersect_native.marked(v, f, flags, only_u8, workers) == 0:
                 return flags.view(np.bool_)
-        elif children == 4 and _intersect_native.stars(v, f, flags, only_u8, 4) == 0:
+        elif children == 4 and _intersect_native.stars(v, f, flags, only_u8, 4, workers) == 0:
             return flags.view(np.bool_)
-        if _intersect_native.faces(v, f, flags, only_u8):
+        if _intersect_native.faces(v, f, flags, only_u8, workers):
             raise RuntimeError("self-intersection test: too many candidate face pairs")
         return flags.view(np.bool_)
     flagged = np.zeros(len(f), dtype=bool)

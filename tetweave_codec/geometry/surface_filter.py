@@ -62,6 +62,7 @@ def filter_surface(
     creases: bool = False,
     scale: float = 1.0,
     offset: np.ndarray | None = None,
+    threads: int = 1,
 ) -> FilteredSurface:
     """The decoder's filter of a closed, consistently oriented marching-tets surface vertices (V,3), faces (F,3):
     `smoothing` Taubin steps, `subdivision` Loop levels (both in the frame of `vertices`), then the output
@@ -73,7 +74,8 @@ def filter_surface(
     Every path ends checked (formats/README.md, "No self-intersections"): the unfiltered surface (no filter, or
     the filter dropped) is checked as it is returned. ContainerError when the subdivided surface would have more
     than MAX_SUBDIVIDED_FACES faces, and when the unfiltered surface itself has faces that cross or touch (or the
-    check cannot bound its work there): a file no encoder writes."""
+    check cannot bound its work there): a file no encoder writes. threads: the crossing checks' threads
+    (`intersections.self_intersecting_faces`; the result is the same on any count)."""
     v0 = np.asarray(vertices, dtype=np.float64)
     f0 = np.asarray(faces, dtype=np.int64)
     if subdivision > 0 and len(f0) * 4**subdivision > MAX_SUBDIVIDED_FACES:
@@ -82,7 +84,7 @@ def filter_surface(
             f"{MAX_SUBDIVIDED_FACES:,}"
         )
     if (smoothing <= 0 and subdivision <= 0) or len(f0) == 0:
-        return FilteredSurface(_checked_control(v0, f0, scale, offset), f0, 0, False)
+        return FilteredSurface(_checked_control(v0, f0, scale, offset, threads), f0, 0, False)
     # marching tets' output is a checked closed 2-manifold: its half-edges are the edges, once each way
     edges = mesh_edges(f0, len(v0), closed=True)
     smooth_edges, loop_creases = edges, None
@@ -95,9 +97,9 @@ def filter_surface(
     if subdivision > 0:
         v, reference, f = loop_and_midpoint(v, v0, f0, subdivision, neighbours=edges, creases=loop_creases)
     v, reference = _transformed(v, scale, offset), _transformed(reference, scale, offset)
-    out, restored, gave_up = restore_crossings(v, reference, f, children=4 if subdivision > 0 else 1)
+    out, restored, gave_up = restore_crossings(v, reference, f, children=4 if subdivision > 0 else 1, threads=threads)
     if gave_up:
-        return FilteredSurface(_checked_control(v0, f0, scale, offset), f0, len(v0), True)
+        return FilteredSurface(_checked_control(v0, f0, scale, offset, threads), f0, len(v0), True)
     return FilteredSurface(out, f, restored, False)
 
 
@@ -107,7 +109,9 @@ def _transformed(v: np.ndarray, scale: float, offset: np.ndarray | None) -> np.n
     return v if offset is None else v * float(scale) + offset
 
 
-def _checked_control(v0: np.ndarray, f0: np.ndarray, scale: float, offset: np.ndarray | None) -> np.ndarray:
+def _checked_control(
+    v0: np.ndarray, f0: np.ndarray, scale: float, offset: np.ndarray | None, threads: int = 1
+) -> np.ndarray:
     """The unfiltered surface in the output frame, checked: ContainerError when two of its faces cross or touch
     (marching tets on a proper tetrahedralization never makes such faces in exact arithmetic; a file can through
     saturated SH terms, which put vertices on the points, and through rounding at its extremes) or when the check
@@ -116,7 +120,7 @@ def _checked_control(v0: np.ndarray, f0: np.ndarray, scale: float, offset: np.nd
     if len(f0) < 2:
         return out
     try:
-        bad = int(self_intersecting_faces(out, f0).sum())
+        bad = int(self_intersecting_faces(out, f0, threads=threads).sum())
     except RuntimeError:
         raise ContainerError(
             "invalid .tw file: its surface cannot be checked for self-intersections within the decoder's work bound"
@@ -127,14 +131,14 @@ def _checked_control(v0: np.ndarray, f0: np.ndarray, scale: float, offset: np.nd
 
 
 def restore_crossings(
-    moved: np.ndarray, reference: np.ndarray, faces: np.ndarray, children: int = 1
+    moved: np.ndarray, reference: np.ndarray, faces: np.ndarray, children: int = 1, threads: int = 1
 ) -> tuple[np.ndarray, int, bool]:
     """moved (V,3) with the vertices of faces that cross another face put back to `reference` (V,3), repeated
     until no face crosses (at most MAX_CHECKS checks). Returns (vertices, number of vertices restored, gave_up):
     gave_up when the last check still finds crossing faces, when crossing faces are all at their reference
     already, or when the check cannot bound its work; the vertices are then `reference`. children: 4 when the
-    faces are a Loop level's output (runs of four children), a hint for the check's speed
-    (`intersections.self_intersecting_faces`)."""
+    faces are a Loop level's output (runs of four children), a hint for the check's speed, and threads the
+    check's threads (`intersections.self_intersecting_faces`); neither changes the result."""
     v = np.array(moved, dtype=np.float64)
     faces = np.asarray(faces, dtype=np.int64)
     restored = np.zeros(len(v), dtype=bool)
@@ -144,7 +148,7 @@ def restore_crossings(
             # later checks test only pairs with a face that just changed or crossed at the last check: a pair of
             # two other faces was tested at these same positions by the last check and did not cross (had it
             # crossed, both faces would be flagged), so the answer is that of a check of every pair
-            bad = self_intersecting_faces(v, faces, only=interest, children=children)
+            bad = self_intersecting_faces(v, faces, only=interest, children=children, threads=threads)
             if not bad.any():
                 return v, int(restored.sum()), False
             if check == MAX_CHECKS - 1:

@@ -104,7 +104,7 @@ def _classical_record(result) -> dict:
 
 def decode_file(task: Task) -> dict:
     """Rebuild the mesh of one .tw file; task.options: {"format": "obj"|"ply"|..., "delaunay": "file"|backend,
-    "level": "control"|"smoothed"|"full" (default full)}.
+    "level": "control"|"smoothed"|"full" (default full), "threads": the crossing check's threads (default 1)}.
 
     Returns {"status": "ok", "data": mesh file bytes, "points", "vertices", "faces", "seconds"} or a failed
     result. Numpy only: never imports torch.
@@ -121,7 +121,10 @@ def decode_file(task: Task) -> dict:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # a missing backend: the file decodes with another one
             result = decode_detailed(
-                data, None if backend == "file" else backend, level=task.options.get("level", "full")
+                data,
+                None if backend == "file" else backend,
+                level=task.options.get("level", "full"),
+                threads=task.options.get("threads", 1),
             )
         out = mesh_bytes(result.vertices, result.faces, task.options.get("format", "obj"))
     except Exception as exc:
