@@ -29,6 +29,7 @@ from tetweave_codec.cli.common import (
 from tetweave_codec.errors import TetweaveError
 from tetweave_codec.geometry.sh import SH_DEGREE_MAX
 from tetweave_codec.meshio import write_bytes_atomic
+from tetweave_codec.options import SURFACES
 
 ADAPTIVE_NOTE = (
     "Classical settings: the adaptive sweep (`--sweep adaptive`) measured, on each curve, only the settings around "
@@ -187,6 +188,7 @@ def _command_line(p: dict) -> str:
     if MLAB_DRACO in methods:
         args += ["--mlab", _joined(p["mlab_keep"]), "--mlab-bits", _joined(p["mlab_bits"])]
     args += ["--sweep", p["sweep"]] if any(m != TETWEAVE for m in methods) else []
+    args += ["--surface", p["surface"]] if p["surface"] != "auto" else []  # the target of every method's metrics
     args += ["--samples", str(p["samples"]), "--seed", str(p["seed"])]
     args += [] if p["pictures"] else ["--no-pictures"]
     args += ["--threads", str(p["threads"])] if p["threads"] else []
@@ -244,6 +246,14 @@ def _command_line(p: dict) -> str:
     callback=_encoder_choices("HOLES", "holes"),
     help="tetweave's treatment of open inputs' holes, comma-separated: close, keep (see tetweave encode --holes); "
     "each is its own curve.",
+)
+@click.option(
+    "--surface",
+    type=click.Choice(SURFACES),
+    default="auto",
+    help="tetweave's --surface (see tetweave encode --surface). Every method, the classical ones too, is measured "
+    "against the surface it resolves to on each mesh (the visible surface or the whole input; summary.md says "
+    "which); the classical methods always compress every face of the input.",
 )
 @quality_option
 @iters_option
@@ -308,6 +318,7 @@ def bench(
     sh_degrees: list[int | None],
     layouts: list[str],
     holes: list[str],
+    surface: str,
     quality: str,
     iters: int | None,
     draco_bits: list[int],
@@ -326,8 +337,9 @@ def bench(
 ) -> None:
     """Compare tetweave with Draco on every mesh in MESH_DIR (a folder, or one mesh file).
 
-    Every method's output is decoded and measured against its input in the input's normalized frame (Chamfer
-    and Hausdorff distances, normal consistency, F1, edge metrics, triangle quality, watertightness,
+    Every method's output is decoded and measured against its input in the input's normalized frame (against the
+    input's visible surface where --surface resolves to it: the same target as the fit; Chamfer and Hausdorff
+    distances, normal consistency, F1, edge metrics, triangle quality, watertightness,
     self-intersections); sizes are compared at matched Chamfer distance. A failing mesh or method is recorded
     in its rows and the batch goes on.
     """
@@ -389,6 +401,7 @@ def bench(
                 size=s,
                 layout=layout,
                 holes=h,
+                surface=surface,
             )
             for layout in layouts
             for h in holes
@@ -400,6 +413,7 @@ def bench(
     command = _command_line(ctx.params)
     rows: list[dict] = []
     images: dict[str, list[str]] = {}
+    targets: dict[str, str] = {}
     notes = [ADAPTIVE_NOTE] if sweep == ADAPTIVE and TETWEAVE in methods and len(method_list) > 0 else []
 
     def on_mesh(result) -> None:
@@ -421,8 +435,9 @@ def bench(
             except Exception as exc:  # a picture must not cost the numbers
                 say(f"{result.name}: could not write {name}: {type(exc).__name__}: {exc}")
         images[result.name] = names
+        targets[result.name] = result.target
         report.write_csv(rows, out_dir / "results.csv")
-        report.write_summary(rows, out_dir / "summary.md", command=command, images=images, notes=notes)
+        report.write_summary(rows, out_dir / "summary.md", command=command, images=images, notes=notes, targets=targets)
 
     say(f"{len(paths)} mesh(es) x {len(method_list)} method setting(s) -> {out_dir}")
     use_ray, ray_address, _ = split_ray(ray_value, ())
@@ -435,10 +450,10 @@ def bench(
         workers = threads or 1
         executor = make_executor(jobs or default_jobs(workers), ray_address, use_ray, workers)
         method_list = precompute(paths, method_list, executor, workers, progress=say)
-    all_rows = run_batch(paths, method_list, options, progress=say, on_mesh=on_mesh, sweep=sweep)
+    all_rows = run_batch(paths, method_list, options, progress=say, on_mesh=on_mesh, sweep=sweep, surface=surface)
     # meshes that could not be loaded never reach on_mesh: their rows are only in all_rows
     report.write_csv(all_rows, out_dir / "results.csv")
-    report.write_summary(all_rows, out_dir / "summary.md", command=command, images=images, notes=notes)
+    report.write_summary(all_rows, out_dir / "summary.md", command=command, images=images, notes=notes, targets=targets)
     failures = sum(1 for r in all_rows if r.get("error"))
     say(
         f"done: {out_dir / 'results.csv'}, {out_dir / 'summary.md'}"

@@ -104,3 +104,42 @@ def test_decimation_bits_leave_half_the_error_to_the_decimation():
     assert decimate_bits(DracoMatch(5e-4, 260.0, None, settings)) == 12  # 11 is within, not within half
     assert decimate_bits(DracoMatch(1e-2, None, "below", {8: (100, 4e-3)})) == 8  # within half at MIN_BITS
     assert decimate_bits(DracoMatch(1e-5, None, "above", settings)) == MAX_BITS
+
+
+def test_context_of_a_visible_surface_encode_compresses_the_whole_input():
+    """When the encode fitted the visible surface (a ball with a hidden ball inside), the summary's plain Draco and
+    fast-simplification + Draco compress the input as given, every face (their bytes include the hidden ball), and
+    measure their error against the visible surface (the outer ball), as the encode's own Chamfer distance is; on
+    the clean ball (auto -> all) nothing changes."""
+    from tetweave_codec.bench.anchor import classical_context
+    from tetweave_codec.fit.prepared import prepare_input
+    from tetweave_codec.fit.visible import choose_surface
+
+    outer = trimesh.creation.icosphere(subdivisions=3, radius=0.9)
+    inner = trimesh.creation.icosphere(subdivisions=2, radius=0.3)
+    vo, fo = np.asarray(outer.vertices), np.asarray(outer.faces, dtype=np.int64)
+    v = np.concatenate([vo, np.asarray(inner.vertices) + [0.1, 0.0, 0.0]])
+    f = np.concatenate([fo, np.asarray(inner.faces, dtype=np.int64) + len(vo)])
+    given = prepare_input(v, f)
+    choice = choose_surface(given.normalized, given.faces, "auto")
+    assert choice.mode == "visible"
+    prepared = given.on_visible_surface(choice.surface, choice.reason)
+    assert prepared.source is given and given.source is given and len(prepared.faces) == len(fo)
+    context = classical_context(prepared, 5000, 0.05, 20_000, SAMPLES)
+    clean = prepare_input(vo, fo)
+    for bits, (size, error) in context["draco"].settings.items():
+        data = draco_encode(given.normalized, f, bits, 7)
+        assert size == len(data) > len(draco_encode(clean.normalized, fo, bits, 7))
+        assert error == prepared.normalized_chamfer(*draco_decode(data), min(SAMPLES, 10_000))
+        # the hidden ball's faces (1/9 of the decoded area, ~0.55 inside) are error against the visible surface
+        assert error > 0.02 > given.normalized_chamfer(*draco_decode(data), min(SAMPLES, 10_000))
+    for (keep, bits), (faces, size, error) in list(context["decimate"].settings.items())[:3]:
+        vd, fd = decimate(given.vertices, f, keep)  # the whole input, in its own frame
+        data = draco_encode(vd, fd, bits, 7)
+        assert (faces, size) == (len(fd), len(data))
+        assert error == prepared.chamfer(*draco_decode(data), min(SAMPLES, 10_000))
+    assert all("hidden ones included; error to the visible surface" in line for line in context["lines"])
+    assert f"of all {len(f):,} input faces" in context["lines"][0]
+    # the clean input: the lines of before, without the note
+    lines = classical_context(clean, 5000, 1e-3, 20_000, SAMPLES)["lines"]
+    assert not any("visible surface" in line for line in lines)

@@ -338,6 +338,80 @@ def test_unreadable_mesh_is_reported_in_its_rows(mesh_dir):
 
 
 # ----------------------------------------------------------------------------------------------------------
+# The target: the surface tetweave fits (issue 46)
+# ----------------------------------------------------------------------------------------------------------
+
+
+def ball_with_hidden_ball():
+    """A closed ball (r 0.9) with a closed ball (r 0.3) hidden inside it, never joined: (outer (V,3), (F,3)) and
+    the whole input (V',3), (F',3), the outer ball's vertices and faces first."""
+    import trimesh
+
+    outer = trimesh.creation.icosphere(subdivisions=3, radius=0.9)
+    inner = trimesh.creation.icosphere(subdivisions=2, radius=0.3)
+    vo, fo = np.asarray(outer.vertices), np.asarray(outer.faces, dtype=np.int64)
+    vi, fi = np.asarray(inner.vertices) + [0.1, 0.0, 0.0], np.asarray(inner.faces, dtype=np.int64)
+    return (vo, fo), (np.concatenate([vo, vi]), np.concatenate([fo, fi + len(vo)]))
+
+
+def test_classical_rows_compress_the_whole_input_and_are_measured_against_the_visible_surface():
+    """On a ball with a hidden ball inside, `--surface auto` resolves to the visible surface (the outer ball): Draco
+    still compresses every face (its bytes are those of the whole input, hidden ball included) and its Chamfer
+    distance is measured against the outer ball alone, so the hidden ball's decoded faces count as error; with
+    `--surface all` the same bytes are measured against the whole input, as before."""
+    (vo, fo), (v, f) = ball_with_hidden_ball()
+    visible = run_mesh("messy", v, f, [DracoMethod(12)], OPTIONS)
+    whole = run_mesh("messy", v, f, [DracoMethod(12)], OPTIONS, surface="all")
+    assert visible.target.startswith("the input's visible surface") and "hidden" in visible.target
+    assert all(r["target"] == "visible" for r in visible.rows) and all(r["target"] == "all" for r in whole.rows)
+    row_v, row_a = visible.rows[1], whole.rows[1]
+    assert row_v["bytes"] == row_a["bytes"] == len(draco_encode(v, f, 12, DRACO_COMPRESSION_LEVEL))
+    assert row_v["bytes"] > len(draco_encode(vo, fo, 12, DRACO_COMPRESSION_LEVEL))
+    # against the outer ball alone, in the input's frame (the outer ball's own: it spans the bounding box)
+    decoded = draco_decode(draco_encode(v, f, 12, DRACO_COMPRESSION_LEVEL))
+    expected = reference_chamfer(prepare_reference(vo, fo, OPTIONS), *decoded, OPTIONS)
+    assert row_v["chamfer"] == pytest.approx(expected, rel=1e-9)
+    # the hidden ball (1/9 of the area, ~0.55 inside the outer ball) is error now, quantization alone before
+    assert row_a["chamfer"] < 2e-3 < 0.02 < row_v["chamfer"]
+    # a clean input keeps today's numbers: auto resolves to the input
+    clean = run_mesh("ball", vo, fo, [DracoMethod(12)], OPTIONS)
+    before = run_mesh("ball", vo, fo, [DracoMethod(12)], OPTIONS, surface="all")
+    assert clean.rows[1]["target"] == "all" and clean.rows[1]["chamfer"] == before.rows[1]["chamfer"]
+    assert "consistently oriented" in clean.target
+
+
+def test_bench_summary_says_what_it_measured_against(tmp_path):
+    """`tetweave bench` on a clean ball and a ball with a hidden ball: the CSV's target column and the summary name
+    the visible surface for the messy mesh only."""
+    folder = tmp_path / "meshes"
+    folder.mkdir()
+    (vo, fo), (v, f) = ball_with_hidden_ball()
+    save_mesh(folder / "ball.ply", vo, fo)
+    save_mesh(folder / "messy.ply", v, f)
+    out = tmp_path / "o"
+    args = ["bench", str(folder), "--out", str(out), "--methods", "draco", "--draco-bits", "10,12"]
+    result = CliRunner().invoke(main, [*args, "--samples", "2000", "--no-pictures", "--threads", "1"])
+    assert result.exit_code == 0, result.output
+    with open(out / "results.csv", newline="") as fh:
+        targets = {(r["mesh"], r["target"]) for r in csv.DictReader(fh)}
+    assert targets == {("ball", "all"), ("messy", "visible")}
+    summary = (out / "summary.md").read_text()
+    ball = summary[summary.index("### ball") : summary.index("### messy")]
+    messy = summary[summary.index("### messy") :]
+    assert "- measured against the input (a consistently oriented surface" in ball
+    assert "- measured against the input's visible surface (" in messy and "every input face" in messy
+    assert "its visible surface on 1 (messy)" in summary
+    rows = report.read_csv(out / "results.csv")  # read back without the reasons, the column still says it
+    assert report.target_line([r for r in rows if r["mesh"] == "messy"]).startswith(
+        "- measured against the input's visible surface"
+    )
+    again = CliRunner().invoke(main, [*args, "--samples", "2000", "--no-pictures", "--surface", "all"])
+    assert again.exit_code == 0, again.output
+    assert "its visible surface" not in (out / "summary.md").read_text()
+    assert "--surface all" in (out / "summary.md").read_text()
+
+
+# ----------------------------------------------------------------------------------------------------------
 # The command, end to end on two small meshes
 # ----------------------------------------------------------------------------------------------------------
 

@@ -207,14 +207,18 @@ def decimate_draco_at_chamfer(
 
 
 def classical_context(prepared, file_bytes: int, chamfer: float, decoded_faces: int, n_samples: int) -> dict:
-    """Plain Draco and fast-simplification + Draco of the prepared input (fit.prepared.PreparedInput, normalized
-    frame) at the encode's Chamfer distance `chamfer` (measured with `n_samples` per mesh); the searches measure
-    their candidates with SEARCH_SAMPLES (fewer when `n_samples` is smaller).
+    """Plain Draco and fast-simplification + Draco of the input as the user gave it (`prepared.source`, every
+    face) at the encode's Chamfer distance `chamfer` to the surface the fit took (`prepared`, fit.prepared.
+    PreparedInput, normalized frame; the visible surface when the encode fitted it), measured with `n_samples` per
+    mesh; the searches measure their candidates with SEARCH_SAMPLES (fewer when `n_samples` is smaller).
 
     Returns {"draco": DracoMatch, "decimate": DecimateMatch, "lines": [str, str], "record": {...}}: the summary's
     two lines and the numbers a batch manifest keeps ("draco_bytes", "decimate_draco_bytes": None where no setting
     reaches the distance)."""
     samples = min(n_samples, SEARCH_SAMPLES)
+    # A user with a messy input (hidden parts, inner walls, overlaps) compresses all of it with a classical codec:
+    # its bytes include the hidden faces, and its error counts against what a viewer sees, as tetweave's does.
+    given = prepared.source
 
     def distance(v, f):
         return prepared.normalized_chamfer(v, f, samples)
@@ -222,24 +226,32 @@ def classical_context(prepared, file_bytes: int, chamfer: float, decoded_faces: 
     def distance_in_input_frame(v, f):
         return prepared.chamfer(v, f, samples)
 
-    draco = draco_at_chamfer(prepared.normalized, prepared.faces, chamfer, distance)
+    draco = draco_at_chamfer(given.normalized, given.faces, chamfer, distance)
     # decimated in the input's own frame, as a user decimates their file: fast-simplification's collapse thresholds
     # are absolute, so the frame changes its result (fandisk, 10 % of the faces, 11 bits: Chamfer 2.6e-4 in its own
     # frame, 3.2e-4 in the normalized one); Draco's quantization is relative to the bounding box, the same in both
     decimated = decimate_draco_at_chamfer(
-        prepared.vertices,
-        prepared.faces,
+        given.vertices,
+        given.faces,
         chamfer,
         distance_in_input_frame,
         decimate_bits(draco),
         max(decoded_faces // 4, 4),
     )
+    lines = [draco.describe(file_bytes), decimated.describe(file_bytes)]
+    if given is not prepared:
+        lines = [line + VISIBLE_NOTE.format(faces=len(given.faces)) for line in lines]
     return {
         "draco": draco,
         "decimate": decimated,
-        "lines": [draco.describe(file_bytes), decimated.describe(file_bytes)],
+        "lines": lines,
         "record": {"draco_bytes": draco.bytes, "decimate_draco_bytes": decimated.bytes},
     }
+
+
+# Said after each context line when the encode fitted the visible surface: what the classical file holds and what
+# its error is measured against.
+VISIBLE_NOTE = " (of all {faces:,} input faces, hidden ones included; error to the visible surface)"
 
 
 def encode_context(result) -> dict | None:

@@ -1,10 +1,12 @@
 """The batch runner of `tetweave bench`: every mesh x every method -> encode, decode, time, measure.
 
 One result row per (mesh, method, setting), a plain dict with the keys of `COLUMNS`, plus one "input" row per
-mesh (raw size and the input's own triangle quality and topology, for reference). A failure of one method on
-one mesh (an exception anywhere in encode, decode or the metrics) is recorded in that row's ``error`` column
-and the batch goes on. Decoded meshes are handed to `on_mesh` one mesh at a time (for the pictures), never all
-kept at once.
+mesh (raw size and the input's own triangle quality and topology, for reference). Every method compresses the
+input as given (all its faces) and is measured against the surface tetweave fits (`bench_target`: the input, or
+its visible surface when `--surface` resolves to visible), named in each row's ``target`` column. A failure of
+one method on one mesh (an exception anywhere in encode, decode or the metrics) is recorded in that row's
+``error`` column and the batch goes on. Decoded meshes are handed to `on_mesh` one mesh at a time (for the
+pictures), never all kept at once.
 """
 
 from __future__ import annotations
@@ -21,7 +23,13 @@ from tetweave_codec.bench.methods import TETWEAVE, Method
 from tetweave_codec.geometry.closest import SurfaceTree
 from tetweave_codec.geometry.triangles import sample_surface
 from tetweave_codec.metrics.common import MetricOptions, as_mesh
-from tetweave_codec.metrics.fidelity import Reference, point_surface_distance, prepare_reference, to_frame
+from tetweave_codec.metrics.fidelity import (
+    Reference,
+    point_surface_distance,
+    prepare_mesh,
+    prepare_reference,
+    to_frame,
+)
 from tetweave_codec.metrics.summary import evaluate, mesh_report
 
 # Result columns in CSV order. Distances are in the input's normalized frame (see tetweave_codec.metrics.fidelity).
@@ -61,7 +69,8 @@ QUALITY_COLUMNS = [
     "n_vertices",
     "n_faces",
 ]
-COLUMNS = ID_COLUMNS + PARAM_COLUMNS + SIZE_COLUMNS + FIDELITY_COLUMNS + QUALITY_COLUMNS + ["error"]
+# target: what the distances are measured against, "all" (the input's faces) or "visible" (`bench_target`)
+COLUMNS = ID_COLUMNS + PARAM_COLUMNS + SIZE_COLUMNS + FIDELITY_COLUMNS + QUALITY_COLUMNS + ["target", "error"]
 
 INPUT_FAMILY = "input"
 # How the classical settings are chosen (`tetweave bench --sweep`): every one, or those around the tetweave points.
@@ -76,7 +85,8 @@ class MeshResult:
 
     name: label of the mesh (file stem, made unique). vertices (V,3), faces (F,3): the input. rows: result
     rows (the input row first). decoded: method name -> decoded (vertices, faces), successes only. files:
-    tetweave setting -> its `.tw` bytes, successes only (classical outputs are not kept).
+    tetweave setting -> its `.tw` bytes, successes only (classical outputs are not kept). target: what the rows
+    were measured against (`Target.describe`; empty when the input could not be measured).
     """
 
     name: str
@@ -85,6 +95,44 @@ class MeshResult:
     rows: list[dict] = field(default_factory=list)
     decoded: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
     files: dict[str, bytes] = field(default_factory=dict)
+    target: str = ""
+
+
+@dataclass(frozen=True)
+class Target:
+    """What a mesh's rows are measured against: mode "all" (the input) or "visible" (its visible surface,
+    fit.visible), why (fit.visible.SurfaceChoice.reason), and the prepared reference (in the input's normalized
+    frame either way, the frame of the encoder's own Chamfer distance)."""
+
+    mode: str
+    reason: str
+    reference: Reference
+
+    def describe(self) -> str:
+        """One phrase for the summary and the progress lines."""
+        if self.mode == "visible":
+            return f"the input's visible surface ({self.reason}); the classical methods compress every input face"
+        return f"the input ({self.reason})" if self.reason else "the input"
+
+
+def bench_target(vertices: np.ndarray, faces: np.ndarray, surface: str, options: MetricOptions) -> Target:
+    """The surface tetweave's `--surface` fits on this input (fit.visible.choose_surface on the normalized input,
+    as the encoder decides it), prepared as the reference of every method's metrics. "all", and "auto" on a clean
+    input, give exactly `prepare_reference(vertices, faces)`. InputError (fit.visible) when no face is visible."""
+    if surface == "all":
+        return Target("all", "", prepare_reference(vertices, faces, options))
+    from tetweave_codec.fit.visible import choose_surface
+    from tetweave_codec.meshio import normalize
+
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    normalized, scale, offset = normalize(v)
+    choice = choose_surface(normalized, f, surface)
+    if choice.mode != "visible":
+        return Target("all", choice.reason, prepare_reference(vertices, faces, options))
+    # the visible surface is in the input's normalized frame already: measured there, as the encoder measures
+    mesh = prepare_mesh(choice.surface.vertices, choice.surface.faces, options)
+    return Target("visible", choice.reason, Reference(mesh, float(scale), np.asarray(offset, dtype=np.float64)))
 
 
 def find_meshes(path: str | Path) -> list[Path]:
@@ -233,10 +281,12 @@ def run_mesh(
     options: MetricOptions | None = None,
     progress: ProgressFn | None = None,
     sweep: str = ADAPTIVE,
+    surface: str = "auto",
 ) -> MeshResult:
     """All methods on one (already loaded) mesh. sweep: "full" measures every classical setting; "adaptive" (the
     default) runs the tetweave methods first and then only the classical settings that bracket their Chamfer
-    distances (`sweep.adaptive_sweep`; every setting when there is no tetweave point to compare with)."""
+    distances (`sweep.adaptive_sweep`; every setting when there is no tetweave point to compare with). surface:
+    the tetweave methods' `--surface`; every row is measured against what it resolves to (`bench_target`)."""
     if sweep not in SWEEPS:
         raise ValueError(f"sweep is one of {', '.join(SWEEPS)}, got {sweep!r}")
     opts = options or MetricOptions()
@@ -244,12 +294,14 @@ def run_mesh(
     result = MeshResult(name, vertices, faces)
     try:
         result.rows.append(input_row(name, vertices, faces, opts))
-        reference = prepare_reference(vertices, faces, opts)
+        target = bench_target(vertices, faces, surface, opts)
     except Exception as exc:  # e.g. a zero-area input: nothing can be measured against it
         error = _error_text(exc)
         say(f"{name}: cannot measure against this input: {error}")
         result.rows = [_empty_row(name, m) | {"error": f"input: {error}"} for m in [None, *methods]]
         return result
+    reference, result.target = target.reference, target.describe()
+    say(f"{name}: measured against {result.target}")
     fits = [m for m in methods if m.family == TETWEAVE]
     if sweep == ADAPTIVE and fits and len(fits) < len(methods):
         from tetweave_codec.bench.sweep import adaptive_sweep
@@ -260,6 +312,8 @@ def run_mesh(
         adaptive_sweep(result, classical, targets, reference, opts, say)
     else:
         _run_each(result, methods, reference, opts, say)
+    for row in result.rows:
+        row["target"] = target.mode
     return result
 
 
@@ -284,11 +338,13 @@ def run_batch(
     progress: ProgressFn | None = None,
     on_mesh: Callable[[MeshResult], None] | None = None,
     sweep: str = ADAPTIVE,
+    surface: str = "auto",
 ) -> list[dict]:
     """Run every method on every mesh file; returns all rows (input rows included).
 
     A mesh that cannot be loaded gets one row per method carrying the load error. `on_mesh` is called after
-    each mesh with its MeshResult (decoded meshes included), e.g. to write pictures and partial results.
+    each mesh with its MeshResult (decoded meshes included), e.g. to write pictures and partial results. surface:
+    as in `run_mesh`.
     """
     from tetweave_codec.meshio import load_mesh
 
@@ -307,7 +363,7 @@ def run_batch(
                 row["error"] = f"load: {error}"
                 rows.append(row)
             continue
-        result = run_mesh(name, vertices, faces, methods, options, progress, sweep)
+        result = run_mesh(name, vertices, faces, methods, options, progress, sweep, surface)
         rows.extend(result.rows)
         if on_mesh is not None:
             on_mesh(result)

@@ -77,6 +77,8 @@ class TetweaveMethod(Method):
     layout: where the points come from, "fit", "grid" or "best" (`tetweave encode --layout`; best needs `size`;
     the curve and settings name every layout but the fit, whose names stay as they were).
     holes: "close" or "keep" (`tetweave encode --holes`; "keep" is named in the curve and settings as keep-holes).
+    surface: "auto", "visible" or "all" (`tetweave encode --surface`; the bench measures every method against the
+    surface it resolves to, `batch.bench_target`, so it is not part of the labels).
     progress: optional fit progress callback, passed to the encoder unchanged.
     """
 
@@ -94,8 +96,10 @@ class TetweaveMethod(Method):
         size: int | None = None,
         layout: str = "fit",
         holes: str = "close",
+        surface: str = "auto",
     ) -> None:
         self.size = None if size is None else int(size)
+        self.surface = surface
         self.layout = layout
         self.holes = holes
         self.points = int(points)
@@ -148,6 +152,7 @@ class TetweaveMethod(Method):
             size=self.size,
             layout=self.layout,
             holes=self.holes,
+            surface=self.surface,
         )
         result = encode(vertices, faces, options=options, progress=self.progress)
         self.points_used = result.stats["points_target"]

@@ -76,6 +76,7 @@ def precompute(paths: Sequence[Path], methods: Sequence[Method], executor, threa
                 sh_degree="auto" if m.sh_degree is None else str(m.sh_degree),
                 layout=m.layout,
                 holes=m.holes,
+                surface=m.surface,
                 quality=m.quality,
                 iters=m.iters,
                 size=m.size,

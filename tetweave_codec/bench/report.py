@@ -252,6 +252,40 @@ def overall(rows: Sequence[dict]) -> list[str]:
 # Markdown summary
 # ----------------------------------------------------------------------------------------------------------
 
+# What a mesh's rows were measured against, from their ``target`` column (batch.bench_target).
+TARGET_TEXT = {
+    "all": "the input",
+    "visible": "the input's visible surface (fit/visible.py); the classical methods compress every input face",
+}
+
+
+def _target_mode(mesh_rows: Sequence[dict]) -> str | None:
+    modes = {r.get("target") for r in mesh_rows} - {"", None}
+    return modes.pop() if len(modes) == 1 else None
+
+
+def target_line(mesh_rows: Sequence[dict], described: str | None = None) -> str:
+    """One bullet naming what this mesh's Chamfer distances were measured against: `described`
+    (batch.MeshResult.target) when given, else from the rows' ``target`` column."""
+    text = described or TARGET_TEXT.get(_target_mode(mesh_rows) or "", "")
+    return f"- measured against {text}" if text else "- measured against: not recorded"
+
+
+def target_summary(by_mesh: dict[str, list[dict]]) -> str:
+    """One bullet over every mesh: how many were measured against the input, how many against its visible
+    surface (tetweave's `--surface`: the same target as the fit, every method alike)."""
+    modes = [_target_mode(r) for r in by_mesh.values()]
+    visible = [m for m, mode in zip(by_mesh, modes, strict=True) if mode == "visible"]
+    whole = modes.count("all")
+    if not visible:
+        return f"- every method measured against the input ({whole} of {len(modes)} meshes)"
+    return (
+        f"- every method measured against the surface tetweave fits: the input on {whole} mesh(es), its visible "
+        f"surface on {len(visible)} ({', '.join(visible)}), where the classical methods still compress every "
+        "input face, hidden ones included"
+    )
+
+
 SUMMARY_COLUMNS = [
     ("method", "family"),
     ("setting", "setting"),
@@ -329,8 +363,10 @@ def write_summary(
     command: str | None = None,
     images: dict[str, list[str]] | None = None,
     notes: Sequence[str] = (),
+    targets: dict[str, str] | None = None,
 ) -> None:
-    """summary.md: a verdict per mesh, then per mesh its pictures and a table of every setting."""
+    """summary.md: a verdict per mesh, then per mesh its pictures and a table of every setting. targets: mesh ->
+    what its rows were measured against (`batch.MeshResult.target`); without it, the rows' ``target`` column."""
     by_mesh = rows_by_mesh(rows)
     out = ["# tetweave bench: compression against Draco", ""]
     if command:
@@ -345,10 +381,11 @@ def write_summary(
         "### All meshes",
         "",
         *overall(rows),
+        target_summary(by_mesh),
         "",
     ]
     for mesh, mesh_rows in by_mesh.items():
-        out += [f"### {mesh}", "", *verdict(mesh_rows), ""]
+        out += [f"### {mesh}", "", target_line(mesh_rows, (targets or {}).get(mesh)), *verdict(mesh_rows), ""]
     out += ["## Per mesh", ""]
     for mesh, mesh_rows in by_mesh.items():
         inp = next((r for r in mesh_rows if r["family"] == INPUT_FAMILY), None)

@@ -36,7 +36,9 @@ class PreparedInput:
     input's boundary prepared for hole caps (fit.holes.InputRim) when the encode keeps holes open and the input
     has some, else None. detail: rate control's detail measure D (rate_control.prior.input_detail), once measured.
     surface: "all" (the input's faces) or "visible" (`on_visible_surface`: vertices, faces and normalized are then
-    the visible surface's, in the input's frame); surface_reason: why (the summary's phrase).
+    the visible surface's, in the input's frame); surface_reason: why (the summary's phrase). given: on the
+    visible surface, the input as the user gave it (every face, hidden ones included: what a classical codec
+    compresses, bench.anchor); None when this is that input (`source`).
     """
 
     vertices: np.ndarray
@@ -49,6 +51,7 @@ class PreparedInput:
     detail: float | None = None
     surface: str = "all"
     surface_reason: str = ""
+    given: PreparedInput | None = None
     _targets: dict = field(default_factory=dict, repr=False)
     _references: dict = field(default_factory=dict, repr=False)
 
@@ -103,8 +106,13 @@ class PreparedInput:
         vertices = normalized * self.scale + self.offset
         rim = input_rim(normalized, faces) if self.rim is not None else None
         return PreparedInput(
-            vertices, faces, normalized, self.scale, self.offset, self.seed, rim, None, "visible", reason
+            vertices, faces, normalized, self.scale, self.offset, self.seed, rim, None, "visible", reason, self.source
         )
+
+    @property
+    def source(self) -> PreparedInput:
+        """The input as the user gave it: this one, or the one whose visible surface this is."""
+        return self if self.given is None else self.given
 
     def normalized_chamfer(self, vertices: np.ndarray, faces: np.ndarray, n_samples: int) -> float:
         """As `chamfer`, for a mesh already in the normalized frame."""
