@@ -20,11 +20,16 @@ smaller); "floor" is MeshLab + Draco's smallest error when no setting reaches te
 
     python -m tetweave_codec.benchmarks.visible_mlab --only spot --kinds hidden,inner_wall,overlap --sizes 5k,10k \
         --threads 1
+
+--save DIR writes each messy input (DIR/MESH_KIND.ply) and tetweave file (DIR/MESH_KIND_SIZE_SURFACE.tw) for
+`tetweave render`; --before also encodes each input with --surface all (the encode before the option) and saves
+and measures that file, outside the MeshLab comparison.
 """
 
 from __future__ import annotations
 
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -122,7 +127,7 @@ def main() -> None:
     from tetweave_codec.benchmarks.common import script_meshes, script_parser
     from tetweave_codec.benchmarks.visible_surface import build
     from tetweave_codec.encoder import encode
-    from tetweave_codec.meshio import load_mesh, normalize
+    from tetweave_codec.meshio import load_mesh, normalize, save_mesh, write_bytes_atomic
     from tetweave_codec.metrics.common import MetricOptions
     from tetweave_codec.metrics.fidelity import prepare_reference
     from tetweave_codec.options import EncodeOptions
@@ -131,6 +136,8 @@ def main() -> None:
     ap.add_argument("--sizes", default="5k,10k", help="comma-separated --size values (k = 1024)")
     ap.add_argument("--kinds", default=",".join(KINDS))
     ap.add_argument("--samples", type=int, default=100_000, help="surface samples of every Chamfer distance")
+    ap.add_argument("--save", type=Path, default=None, help="folder for the messy inputs and the tetweave files")
+    ap.add_argument("--before", action="store_true", help="also encode with --surface all (saved, measured)")
     args = ap.parse_args()
     sizes = [int(float(s[:-1]) * 1024) if s.endswith("k") else int(s) for s in args.sizes.split(",")]
     options = MetricOptions.for_samples(args.samples)
@@ -142,13 +149,21 @@ def main() -> None:
         for kind in args.kinds.split(","):
             (mv, mf), truth = build(kind, v, f0)
             reference = prepare_reference(*truth, options)
+            if args.save:
+                args.save.mkdir(parents=True, exist_ok=True)
+                save_mesh(args.save / f"{path.stem}_{kind}.ply", mv, mf)
             fits = []
             for size in sizes:
-                t0 = time.perf_counter()
-                res = encode(mv, mf, options=EncodeOptions(size=size, surface="auto", quality=args.quality))
-                error = reference_chamfer(reference, res.vertices, res.faces, options)
-                fits.append((size, res.stats["bytes"], error, res.stats["surface"]))
-                print(path.stem, kind, size, *fits[-1][1:], f"{time.perf_counter() - t0:.0f}s", flush=True)
+                for surface in ("auto", "all") if args.before else ("auto",):
+                    t0 = time.perf_counter()
+                    res = encode(mv, mf, options=EncodeOptions(size=size, surface=surface, quality=args.quality))
+                    error = reference_chamfer(reference, res.vertices, res.faces, options)
+                    if args.save:
+                        write_bytes_atomic(args.save / f"{path.stem}_{kind}_{size // 1024}k_{surface}.tw", res.data)
+                    seconds = f"{time.perf_counter() - t0:.0f}s"
+                    print(path.stem, kind, size, surface, res.stats["bytes"], f"{error:.3g}", seconds, flush=True)
+                    if surface == "auto":
+                        fits.append((size, res.stats["bytes"], error, res.stats["surface"]))
             fronts = {}
             for variant in VARIANTS:
                 t0 = time.perf_counter()
