@@ -234,6 +234,40 @@ def test_cli_nonsense_options(tmp_path, args):
     assert not out.exists()
 
 
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--c-step", "4.5"], "--c-step must be at most 4 "),
+        (["--s-step", "1.01"], "--s-step must be at most 1 "),
+        (["--s-step", "1e300"], "--s-step must be at most 1 "),
+        (["--c-step", "1e-50"], "--c-step must be at least 2^-126"),
+    ],
+)
+def test_cli_steps_a_file_cannot_store_are_refused_before_the_fit(tmp_path, monkeypatch, args, message):
+    """--s-step above 1 or --c-step above 4 (formats.quantize.MAX_S_STEP / MAX_C_STEP) used to fail in pack_v2
+    after the whole fit; now one line, exit 2, before the mesh is read and nothing written. The largest steps a
+    file stores are accepted."""
+    from tetweave_codec.errors import InputError
+    from tetweave_codec.options import EncodeOptions
+
+    src = _write_obj(tmp_path / "in.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n")
+
+    def no_fit(*_args, **_kwargs):
+        raise AssertionError("the fit started")
+
+    monkeypatch.setattr(encoder, "encode", no_fit)
+    monkeypatch.setattr("tetweave_codec.meshio.load_mesh", no_fit)
+    out = tmp_path / "out.tw"
+    res = CliRunner().invoke(main, ["encode", str(src), "-o", str(out), "--points", "512", *args])
+    assert res.exit_code == 2 and "Traceback" not in res.output, res.output
+    (line,) = [ln for ln in res.output.strip().splitlines() if ln]
+    assert line.startswith("tetweave: error: ") and message in line
+    assert not out.exists()
+    EncodeOptions(points=512, s_step=1.0, c_step=4.0)  # the container's largest steps
+    with pytest.raises(InputError, match="--c-step must be at most 4"):
+        EncodeOptions(size=5000, c_step=4.001)
+
+
 def test_cli_encode_then_decode(tmp_path):
     v, f = torus()
     import trimesh

@@ -92,6 +92,24 @@ def check_encode_arguments(
         raise InputError("keeping creases in the smoothing needs container version 2")
 
 
+def check_step_overrides(s_step: float | None, c_step: float | None) -> None:
+    """InputError (one line, before any fit) for an --s-step / --c-step a version-2 file cannot store: as float32,
+    finite and in [MIN_STEP, MAX_S_STEP] / [MIN_STEP, MAX_C_STEP] (formats.quantize.step_problem, which pack_v2
+    applies to the file after the fit)."""
+    import numpy as np
+
+    from tetweave_codec.formats.quantize import MAX_C_STEP, MAX_S_STEP, step_problem
+
+    for flag, value, largest in (("--s-step", s_step, MAX_S_STEP), ("--c-step", c_step, MAX_C_STEP)):
+        if value is None:
+            continue
+        with np.errstate(over="ignore"):
+            stored = float(np.float32(float(value)))
+        if step_problem(flag, stored, largest) is not None:
+            bound = "at least 2^-126 as a float32" if 0 <= stored < 1 else f"at most {largest:g}"
+            raise InputError(f"{flag} must be {bound} (the steps a .tw file can store), got {value:g}")
+
+
 def sh_degree_value(text: str) -> int | None:
     """The encoder's `sh_degree` for the CLI's --sh-degree: "auto" -> None (the encoder's choice), "none" -> -1."""
     return {"auto": None, "none": -1}[text] if text in ("auto", "none") else int(text)
@@ -148,6 +166,7 @@ class EncodeOptions:
             raise InputError(
                 f"the {self.layout} layout chooses its own quantization: drop --position-bits, --s-step, --c-step"
             )
+        check_step_overrides(self.s_step, self.c_step)
         rate_given = self.size is not None or self.max_error is not None
         if self.points is None and not rate_given and any(x is not None for x in overrides):
             # the default quantization follows the point count, which without --points is chosen from the input
