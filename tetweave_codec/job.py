@@ -76,7 +76,6 @@ class FitSettings:
             smoothing=self.smoothing,
             subdivision=self.subdivision,
             creases=self.creases,
-            main_filter=not self.creases,
             plane_distances=feature_only,
         )
 
