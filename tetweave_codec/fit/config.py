@@ -39,14 +39,6 @@ class Schedule:
     # neighbours, the cheapest to remove first (fit.relocate); 0 = only passive points move (the paper). See
     # docs/measurements/relocation.md.
     relocate: float = 0.15
-    # Fraction of the 3-D term's samples (surface_loss.INPUT_SAMPLES input samples, as many mesh samples as the
-    # control mesh has vertices) each main-stage iteration draws; the late stage draws them all. The main stage
-    # applies its position steps once per period of `delaunay_every` iterations, so its gradient already averages
-    # five draws. One thread, `--size 10k`, bytes x Chamfer against all samples (both with the main stage on the
-    # unfiltered surface): spot 0.985, igea 1.055, stanford-bunny 1.007; a quarter of them gained no CPU; half in
-    # both stages cost 3 % (spot 1.030, igea 1.026). With `main_filter` off, ten cases: docs/measurements/
-    # encode_speed.md (2026-12-05).
-    main_samples: float = 0.5
 
 
 # Iteration counts are far below the paper's 5000 + 2000: the SDF start begins near the answer, and the 3-D term
@@ -207,14 +199,14 @@ class FitConfig:
     # (geometry.smoothing.crease_neighbours, Loop's crease rules; container v2, position-bits byte bit 7); the fit
     # optimizes through the same filter.
     creases: bool = False
-    # Whether the main stage fits through the decoder's filter too (else only the late stage does, on the fixed
-    # points). Off: the main stage places points and signs, which the unfiltered surface (a quarter of the faces
-    # with one Loop level) shows as well; its tree, extraction and backward pass cost a quarter. One thread,
-    # `--size 10k`, bytes x Chamfer against through the filter: spot 0.996, igea 0.988, stanford-bunny 0.955.
-    # Together with `Schedule.main_samples` 0.5, on ten encodes (four meshes; --size 10k, 40k, --max-error 1e-3,
-    # default): bytes x Chamfer median 0.999 (0.966-1.037), CPU 0.61-0.82x, median 0.70x (docs/measurements/
-    # encode_speed.md, 2026-12-05). With creases it was off before: the creases of a surface whose points move come
-    # and go at every iteration; fandisk, bytes x Chamfer against no smoothing, 5 / 10 / 20 KB: both stages 0.99 /
+    # Whether the main stage fits through the decoder's filter too (else only the late stage does, on the fixed points).
+    # Off: the main stage places points and signs, which the unfiltered surface (a quarter of the faces with one Loop
+    # level) shows as well; its tree, extraction and backward pass cost a quarter. One thread, bytes x Chamfer against
+    # through the filter: spot 0.996, igea 0.988, stanford-bunny 0.955 (--size 10k), stanford-bunny 1.043 (--max-error
+    # 1e-3); CPU in docs/measurements/encode_speed.md (2026-12-05), with the levers not kept (half the 3-D term's
+    # samples in this stage too: about 0.85x the CPU again, but bytes x Chamfer 1.07x on fandisk and 1.09x on
+    # stanford-bunny at --max-error 1e-3). With creases it was off before: the creases of a surface whose points move
+    # come and go at every iteration; fandisk, bytes x Chamfer against no smoothing, 5 / 10 / 20 KB: both stages 0.99 /
     # 0.88 / 0.93, the late stage alone 0.88 / 0.89 / 0.92 at less CPU (docs/measurements/creases.md, 2026-12-02).
     main_filter: bool = False
 
