@@ -3,11 +3,14 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
 from pathlib import Path
 
 from tetweave_codec.bench.batch import find_meshes
 
-DEFAULT_MESHES = Path(__file__).resolve().parent.parent.parent / "shared" / "meshes"
+REPO = Path(__file__).resolve().parent.parent
+DEFAULT_MESHES = REPO.parent / "shared" / "meshes"
 
 
 def select_meshes(path: str | Path, only: str = "") -> list[Path]:
@@ -40,3 +43,17 @@ def script_meshes(args) -> list[Path]:
 
         torch.set_num_threads(args.threads)
     return select_meshes(args.meshes, args.only)
+
+
+def commit_tree(commit: str, where: Path) -> Path:
+    """`commit`'s source unpacked into where/tree (`git archive`), its C extensions built there (`setup.py build_ext
+    --inplace`) and `cli`, `formats` and `benchmarks` linked into its package (what the editable install's
+    package-dir mapping does): a subprocess with this tree first on PYTHONPATH runs that commit's code."""
+    tree = where / "tree"
+    tree.mkdir()
+    archive = subprocess.run(["git", "-C", str(REPO), "archive", commit], check=True, capture_output=True).stdout
+    subprocess.run(["tar", "-x", "-C", str(tree)], input=archive, check=True)
+    for name in ("cli", "formats", "benchmarks"):
+        (tree / "tetweave_codec" / name).symlink_to(Path("..") / name)
+    subprocess.run([sys.executable, "setup.py", "build_ext", "--inplace"], cwd=tree, check=True, capture_output=True)
+    return tree

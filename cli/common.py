@@ -10,12 +10,16 @@ from tetweave_codec.fit.config import QUALITY
 # fail deep inside the fit ("out of memory", exit 1) instead of at the command line.
 MAX_THREADS = 1024
 
+# One torch thread by default: the fit is a long chain of small tensor operations, and a second thread only adds
+# synchronization (spot and igea at --size 10k on an idle 2-core CPU: two threads took 1.26x and 1.34x the wall time
+# of one, the same bytes; docs/measurements/encode_speed.md, 2026-12-05). The closest-point queries use every core
+# whatever this says (libigl's own threads).
 threads_option = click.option(
     "--threads",
     type=click.IntRange(min=0, max=MAX_THREADS),
-    default=0,
+    default=1,
     show_default=True,
-    help="CPU threads for torch (0: torch's default). Lower it when other work shares the machine.",
+    help="CPU threads for torch (0: torch's default, every core). The fit runs fastest on one.",
 )
 
 device_option = click.option(

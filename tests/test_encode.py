@@ -369,3 +369,26 @@ def test_threads_out_of_range_is_a_usage_error(tmp_path, threads):
     res = CliRunner().invoke(main, ["encode", str(src), "--threads", threads])
     assert res.exit_code == 2 and "--threads" in res.output, res.output
     assert not (tmp_path / "torus.tw").exists()
+
+
+def test_encode_runs_torch_on_one_thread_unless_told(tmp_path):
+    """--threads defaults to 1 (two threads slowed the fit down, cli/common.py); 0 leaves torch's own default."""
+    import torch
+    import trimesh
+
+    v, f = torus()
+    src = tmp_path / "torus.ply"
+    trimesh.Trimesh(v, f, process=False).export(src)
+    fit = ["--points", "256", "--iters", "4", "--quality", "fast", "--device", "cpu", "-q"]
+    before = torch.get_num_threads()
+    try:
+        torch.set_num_threads(2)
+        res = CliRunner().invoke(main, ["encode", str(src), "-o", str(tmp_path / "a.tw"), *fit])
+        assert res.exit_code == 0, res.output
+        assert torch.get_num_threads() == 1
+        torch.set_num_threads(2)
+        res = CliRunner().invoke(main, ["encode", str(src), "-o", str(tmp_path / "b.tw"), "--threads", "0", *fit])
+        assert res.exit_code == 0, res.output
+        assert torch.get_num_threads() == 2
+    finally:
+        torch.set_num_threads(before)

@@ -36,6 +36,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from tetweave_codec.benchmarks.common import commit_tree
+
 REPO = Path(__file__).resolve().parents[2]
 MESHES = ("fandisk", "igea", "spot", "stanford-bunny")
 SIZES = (10240, 40960)
@@ -98,18 +100,6 @@ for _ in range(3):
     best = row if best is None or sum(row) < sum(best) else best
 print(json.dumps([1e3 * x for x in best] + [len(calls) - 1]))
 """
-
-
-def old_tree(commit: str, where: Path) -> Path:
-    """`commit`'s source unpacked into where/tree, extensions built, package-dir mapping as links."""
-    tree = where / "tree"
-    tree.mkdir()
-    archive = subprocess.run(["git", "-C", str(REPO), "archive", commit], check=True, capture_output=True).stdout
-    subprocess.run(["tar", "-x", "-C", str(tree)], input=archive, check=True)
-    for name in ("cli", "formats", "benchmarks"):
-        (tree / "tetweave_codec" / name).symlink_to(Path("..") / name)
-    subprocess.run([sys.executable, "setup.py", "build_ext", "--inplace"], cwd=tree, check=True, capture_output=True)
-    return tree
 
 
 def env_for(tree: Path) -> dict:
@@ -239,7 +229,7 @@ def main(argv: list[str] | None = None) -> int:
     sizes = [int(x) for x in args.sizes.split(",") if x] or ([40960] if args.threads else list(SIZES))
     files = [REPO / "benchmarks/results/files" / m / f"size-{s}-sh-auto.tw" for s in sizes for m in MESHES]
     with tempfile.TemporaryDirectory() as tmp:
-        trees = {"before": old_tree(args.commit, Path(tmp)), "after": REPO}
+        trees = {"before": commit_tree(args.commit, Path(tmp)), "after": REPO}
         if args.threads:
             counts = [x.strip() for x in args.threads.split(",") if x.strip()]
             threads_table(trees, files, counts, args.repeats, Path(tmp), args.wait_idle)
