@@ -29,7 +29,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from tetweave_codec.benchmarks.common import REPO, commit_tree, script_parser, select_meshes
+from tetweave_codec.benchmarks.common import commit_tree, script_parser, select_meshes
 
 CASES = (
     "spot:10k,igea:10k,stanford-bunny:10k,fandisk:10k,spot:e1e-3,igea:e1e-3,stanford-bunny:e1e-3,fandisk:e1e-3,"
@@ -96,7 +96,7 @@ def main(argv: list[str] | None = None) -> int:
     unknown = sorted({m for m, _ in cases} - set(meshes))
     if unknown:
         raise SystemExit(f"no mesh named {', '.join(unknown)} in {args.meshes}")
-    print(f"# {args.commit} against this tree ({REPO.name}), {threads} torch thread(s), one process at a time")
+    print(f"# {args.commit} against this tree, {threads} torch thread(s), one process at a time")
     print("| case | before bytes, Chamfer, CPU s | after bytes, Chamfer, CPU s | bytes x Chamfer | CPU |")
     print("|---|---|---|---:|---:|")
     quality, cpu = [], []

@@ -15,7 +15,7 @@ checks, best of 3). `--unfiltered`: the same files with their smoothing and subd
 thread count (`decode(..., threads=N)`, `tetweave decode --threads N`), the 40 KB files (`--sizes` to change):
 API and CLI medians, their ratios to TetGen's one-thread Delaunay time of the same points (the median of every
 Delaunay time measured for that file in the run, whatever the tree or thread count: TetGen runs on one thread),
-the API's CPU / wall (below 1.5 at two threads: the second core was busy with other work), and whether the
+the API's CPU / wall (below 1.5 at two threads: the second core did not help), and whether the
 decoded meshes are the same bytes: SHA-256 of the API's vertex and face arrays and of the CLI's OBJ file, against
 the older commit's. The CLI writes OBJ, the default output. Rounds interleave the trees and thread counts.
 
@@ -36,9 +36,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from tetweave_codec.benchmarks.common import commit_tree
+from tetweave_codec.benchmarks.common import REPO, commit_tree
 
-REPO = Path(__file__).resolve().parents[2]
 MESHES = ("fandisk", "igea", "spot", "stanford-bunny")
 SIZES = (10240, 40960)
 
@@ -132,7 +131,7 @@ def cli_cpu(tree: Path, path: Path, repeats: int) -> float:
 
 
 def busy_cores(seconds: float = 0.3) -> float:
-    """Cores busy with other work over `seconds` (this process sleeps meanwhile), from /proc/stat; 0 elsewhere."""
+    """Cores busy with other processes over `seconds` (this process sleeps meanwhile), from /proc/stat; 0 elsewhere."""
 
     def sample():
         with open("/proc/stat") as fh:
@@ -147,8 +146,8 @@ def busy_cores(seconds: float = 0.3) -> float:
 
 
 def wait_idle(limit_s: float) -> bool:
-    """Wait up to `limit_s` for the other cores to be idle (< 0.25 of a core busy): two-thread timings on a shared
-    machine mean nothing while other work holds a core. True when they were idle."""
+    """Wait up to `limit_s` for the other cores to be idle (< 0.25 of a core busy): two-thread timings mean nothing
+    while another process holds a core. True when they were idle."""
     end = time.monotonic() + limit_s
     while True:
         if busy_cores() < 0.25:
@@ -169,7 +168,7 @@ def cli_wall(tree: Path, path: Path, threads: str, out: Path) -> float:
 
 def threads_table(trees: dict, files: list[Path], counts: list[str], repeats: int, tmp: Path, idle_s: float) -> None:
     """The `--threads` table (module docstring): per file, the older tree and this tree at each thread count; each
-    measurement waits up to `idle_s` for the machine's other cores to be idle (the count that did not get them is
+    measurement waits up to `idle_s` for the other cores to be idle (the count that did not get them is
     printed at the end)."""
     busy = 0
     print("| file | code | threads | faces | Delaunay | API | API / Delaunay | API CPU / wall | CLI | CLI / Delaunay "
@@ -197,7 +196,7 @@ def threads_table(trees: dict, files: list[Path], counts: list[str], repeats: in
             print(f"| {path.parent.name} {path.stem} | {name} | {n or 1} | {r['faces']:,} | {delaunay:.1f} | "
                   f"{r['total']:.1f} | {r['total'] / delaunay:.2f} | {r['cpu'] / r['total']:.2f} | {c:.0f} | "
                   f"{c / delaunay:.2f} | {hashes} | {same} |", flush=True)  # fmt: skip
-    print(f"\n{busy} measurements started while other work held a core (waited up to {idle_s:.0f} s each)")
+    print(f"\n{busy} measurements started while another process held a core (waited up to {idle_s:.0f} s each)")
 
 
 def unfiltered(path: Path, out: Path) -> Path:
