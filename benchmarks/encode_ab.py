@@ -14,7 +14,8 @@ name that fails to import, first on its path), so that it runs as the README's p
 Per case: bytes and Chamfer distance (the encoder's own report, the summary's metric in the input's normalized
 frame), the child's CPU seconds (user + system of the whole process, start-up and imports included), wall seconds;
 then bytes x Chamfer and CPU, this tree / the older commit, and their medians over the cases. Same seed (0) in
-both; bytes and Chamfer are deterministic, CPU is not: run it on idle cores.
+both; bytes and Chamfer are deterministic, CPU is not: run it on idle cores. `--save DIR` keeps this tree's files
+as DIR/MESH/size-BYTES-sh-auto.tw (the bench's names, benchmarks/results/files/) or DIR/MESH/MODE.tw.
 """
 
 from __future__ import annotations
@@ -49,21 +50,30 @@ if mode.startswith("e"):
 elif mode != "default":
     kw["size"] = int(float(mode[:-1]) * 1024) if mode.endswith("k") else int(mode)
 v, f = load_mesh(sys.argv[1])
-st = encode(v, f, device="cpu", seed=0, quality=sys.argv[4], **kw).stats
+res = encode(v, f, device="cpu", seed=0, quality=sys.argv[4], **kw)
+st = res.stats
+if len(sys.argv) > 5:
+    open(sys.argv[5], "wb").write(res.data)
 print(json.dumps({"bytes": st["bytes"], "chamfer": st["chamfer"], "points": st["points_kept"]}))
 """
 
 
-def run_encode(tree: Path | None, mesh: Path, mode: str, threads: int, quality: str, hide: Path | None) -> dict:
-    """One encode in a fresh process (`tree` None: this tree, as installed); bytes, Chamfer, CPU and wall seconds."""
+def run_encode(
+    tree: Path | None, mesh: Path, mode: str, threads: int, quality: str, hide: Path | None, save: Path | None = None
+) -> dict:
+    """One encode in a fresh process (`tree` None: this tree, as installed); bytes, Chamfer, CPU and wall seconds;
+    the file written to `save` when given."""
     pools = str(threads)
     env = dict(os.environ, OMP_NUM_THREADS=pools, MKL_NUM_THREADS=pools, OPENBLAS_NUM_THREADS=pools)
     if tree is not None:
         env["PYTHONPATH"] = os.pathsep.join(str(p) for p in (tree, hide) if p is not None)
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
-    done = subprocess.run([sys.executable, "-c", ENCODE, str(mesh), mode, str(threads), quality], capture_output=True,
-                          text=True, env=env, cwd=tempfile.gettempdir())  # fmt: skip
+    command = [sys.executable, "-c", ENCODE, str(mesh), mode, str(threads), quality]
+    if save is not None:
+        save.parent.mkdir(parents=True, exist_ok=True)
+        command.append(str(save))
+    done = subprocess.run(command, capture_output=True, text=True, env=env, cwd=tempfile.gettempdir())
     wall = time.perf_counter() - t0
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     if done.returncode != 0:
@@ -71,6 +81,14 @@ def run_encode(tree: Path | None, mesh: Path, mode: str, threads: int, quality: 
     row = json.loads(done.stdout.strip().splitlines()[-1])
     cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
     return row | {"cpu": cpu, "wall": wall}
+
+
+def saved_name(mode: str) -> str:
+    """The file name of a case's file: the bench's `size-BYTES-sh-auto.tw` for a size, else `MODE.tw`."""
+    if mode.startswith("e") or mode == "default":
+        return f"{mode}.tw"
+    size = int(float(mode[:-1]) * 1024) if mode.endswith("k") else int(mode)
+    return f"size-{size}-sh-auto.tw"
 
 
 def hidden_modules(names: list[str], where: Path) -> Path | None:
@@ -89,6 +107,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("commit", help="the older commit (anything git archive takes)")
     ap.add_argument("--cases", default=CASES, help="comma-separated MESH:MODE (default: issue 47's targets)")
     ap.add_argument("--without", default="", help="comma-separated optional packages hidden from the older commit")
+    ap.add_argument("--save", type=Path, default=None, help="folder for this tree's files (the bench's names)")
     args = ap.parse_args(argv)
     threads = args.threads or 1
     meshes = {p.stem: p for p in select_meshes(args.meshes)}
@@ -105,7 +124,8 @@ def main(argv: list[str] | None = None) -> int:
         hide = hidden_modules([n for n in args.without.split(",") if n], Path(tmp))
         for name, mode in cases:
             a = run_encode(old, meshes[name], mode, threads, args.quality, hide)
-            b = run_encode(None, meshes[name], mode, threads, args.quality, None)
+            save = None if args.save is None else args.save / name / saved_name(mode)
+            b = run_encode(None, meshes[name], mode, threads, args.quality, None, save)
             q = (b["bytes"] * b["chamfer"]) / (a["bytes"] * a["chamfer"])
             c = b["cpu"] / a["cpu"]
             quality.append(q)
