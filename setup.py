@@ -9,6 +9,9 @@
   the reference.
 * `tetweave_codec.geometry._filter_native` (tetweave_codec/geometry/_filter_native.c): the decoder's Taubin steps,
   Loop levels and crease test; geometry/smoothing.py and geometry/subdivision.py are the reference.
+* `tetweave_codec.geometry._delaunay_native` (tetweave_codec/geometry/_delaunay_native.c): the exact Delaunay
+  tetrahedralization of integer points under a fixed symbolic perturbation (the "exact" backend of
+  geometry/delaunay.py, specified in its docstring). REQUIRED (`optional=False`): it has no Python fallback.
 * `tetweave_codec._text_native` (tetweave_codec/_text_native.c): the rows of the OBJ and OFF writers; meshio.py is
   the reference.
 
@@ -49,6 +52,13 @@ setup(
             ["tetweave_codec/geometry/_filter_native.c"],
             extra_compile_args=FLAGS,
             optional=True,
+        ),
+        Extension(
+            "tetweave_codec.geometry._delaunay_native",
+            ["tetweave_codec/geometry/_delaunay_native.c"],
+            depends=["tetweave_codec/geometry/_native_sort.h"],
+            extra_compile_args=FLAGS,
+            optional=False,
         ),
         Extension(
             "tetweave_codec._text_native", ["tetweave_codec/_text_native.c"], extra_compile_args=FLAGS, optional=True

@@ -1,0 +1,917 @@
+/* Exact 3-D Delaunay tetrahedralization of integer points, unique under a fixed symbolic perturbation.
+ *
+ *   tetrahedralize(cells) -> (tets, hull_faces) as bytearrays of int64 ((T, 4) and (H, 3), C order)
+ *       cells: a C-contiguous int64 buffer of N * 3 coordinates. Raises ValueError (coordinates outside
+ *       [0, 2^23), N > 2^26, wrong buffer), MemoryError (allocation failure, or more than 64 N + 4096 tets: a
+ *       degenerate set whose tetrahedralization grows quadratically), RuntimeError starting with "flat tet" (a new
+ *       tet would have no volume: an internal inconsistency, never expected) or "walk" (point location did not end).
+ *
+ * DEFINITION (the specification; geometry/delaunay.py's docstring states the same in the same words)
+ *
+ * Input: N integer points p_i = (x_i, y_i, z_i), i = 0..N-1, with 0 <= x_i, y_i, z_i < 2^MAX_BITS, MAX_BITS = 23.
+ *
+ * 1. Duplicates. Of points with equal coordinates only the one with the lowest index i is a vertex; the others
+ *    appear in no tet and no hull face.
+ * 2. Ranks and perturbation. The M distinct points are ranked r = 0..M-1 in ascending lexicographic order of
+ *    (x, y, z). Each point is lifted to h(p) = x^2 + y^2 + z^2 + delta_r, where the delta_r are positive
+ *    infinitesimals with delta_{M-1} >> delta_{M-2} >> ... >> delta_0 > 0 (e.g. delta_r = eps^(M - r), eps -> 0+):
+ *    the point of larger rank is raised more, and its term dominates. The tetrahedralization is the regular
+ *    triangulation of the points with these lifts (the projection of the lower convex hull of the lifted points):
+ *    the Delaunay tetrahedralization where the points are in general position, unique for every input with at
+ *    least 4 affinely independent points. Every distinct point is a vertex (a perturbation this small hides none).
+ * 3. Predicates, exact.
+ *    orient3d(a, b, c, d) = sign det[b - a, c - a, d - a] (rows), no perturbation. A tet (a, b, c, d) is
+ *    positively oriented when orient3d(a, b, c, d) > 0.
+ *    Conflict of a point e with a positively oriented tet (a, b, c, d) (e inside its perturbed circumsphere):
+ *    with O = orient3d(a, b, c, d) and the lifts h,
+ *        Phi = O h(e) - o_a h(a) - o_b h(b) - o_c h(c) - o_d h(d),
+ *        o_a = det3(e, b, c, d), o_b = det3(a, e, c, d), o_c = det3(a, b, e, d), o_d = det3(a, b, c, e),
+ *    det3(.) being the determinant orient3d takes the sign of (o_v / O are e's barycentric coordinates, so
+ *    Phi / O = h(e) - the lifted plane through a, b, c, d at e). e conflicts iff Phi < 0. Phi = Phi_0 +
+ *    O delta(e) - o_a delta(a) - o_b delta(b) - o_c delta(c) - o_d delta(d), Phi_0 the same with |p|^2 for h.
+ *    If Phi_0 != 0 its sign decides (Phi_0 < 0: e strictly inside the circumsphere). Else go through the five
+ *    points in descending rank: if the point is e, e does not conflict (its coefficient O > 0); if it is a vertex
+ *    v, let o = orient3d of the tet with v replaced by e; if o != 0, e conflicts iff o > 0; if o = 0, go on (e
+ *    itself is always reached: the sequence stops).
+ *    Translated to e (A = a - e, ...; |A|^2 the squared length): Phi_0 = -W with
+ *        W = |A|^2 det[B,C,D] - |B|^2 det[A,C,D] + |C|^2 det[A,B,D] - |D|^2 det[A,B,C]   (rows),
+ *    so e is strictly inside iff W > 0.
+ * 4. Convex hull. The infinite vertex closes the hull: a hull triangle (a, b, c), oriented outward, is the finite
+ *    face of a "ghost tet". A point q conflicts with it iff orient3d(a, b, c, q) > 0 (q strictly outside the
+ *    plane), or orient3d(a, b, c, q) = 0 and q is inside the perturbed circumcircle of (a, b, c): in any
+ *    coordinate plane where the projection (a', b', c') of the triangle is not degenerate (this code drops the
+ *    axis of the largest |component| of (b - a) x (c - a), the lowest axis on ties; the result does not depend
+ *    on the choice), with O2 = orient2d(a', b', c') = det[b' - a', c' - a'] and the same 3-D lifts h,
+ *        Phi2 = O2 h(q) - o'_a h(a) - o'_b h(b) - o'_c h(c),
+ *        o'_a = det2(q', b', c'), o'_b = det2(a', q', c'), o'_c = det2(a', b', q'),
+ *    q conflicts iff sign(O2) Phi2 < 0 (h(q) below the lifted plane through a, b, c, at q). Phi2 = Phi2_0 + the
+ *    delta terms as above; if sign(O2) Phi2_0 != 0 it decides, else in descending rank over a, b, c, q: q -> no
+ *    conflict; a vertex v with o' = orient2d(triangle with v replaced by q) != 0 -> conflict iff sign(o') = sign(O2).
+ *    This is the epsilon -> 0 limit of rule 3 restricted to the hull face's plane, so the hull triangulation is
+ *    the regular triangulation's: the 2-D regular triangulation of the points on each planar hull face.
+ * 5. Output. tets (T, 4): every tet positively oriented (orient3d > 0 exactly; none is flat), indices into the
+ *    caller's array. Canonical order: each tet is permuted evenly (orientation kept) so that its smallest index
+ *    comes first and the smallest of the remaining three second; the tets are sorted lexicographically. hull
+ *    faces (H, 3): the hull triangles, oriented outward (the normal (b - a) x (c - a) points away from the points),
+ *    rotated cyclically so that the smallest index comes first, sorted lexicographically. Fewer than 4 distinct
+ *    points, or all distinct points coplanar: T = H = 0 (no error).
+ *
+ * EXACTNESS (the bounds that make 64-bit and 128-bit integers exact). Coordinates c satisfy 0 <= c <= 2^23 - 1:
+ *  - differences: |d| <= 2^23 - 1 < 2^23;
+ *  - products of two differences < 2^46; 2x2 minors |d1 d2 - d3 d4| < 2^47 (int64; also exact in binary64,
+ *    whose integers are exact up to 2^53);
+ *  - orient3d: 3 products of a difference and a 2x2 minor: |det| < 3 * 2^23 * 2^47 < 2^72 (int128);
+ *  - lifts |A|^2 = dx^2 + dy^2 + dz^2 < 3 * 2^46 < 2^48 (int64, exact in binary64);
+ *  - insphere W: 4 products of a lift and a 3x3 determinant of differences:
+ *    |W| < 4 * 3 * 2^46 * 3 * 2^69 = 36 * 2^115 < 2^121 < 2^127 (int128);
+ *  - the 2-D conflict W2 = |A|^2 det2[B, C] - |B|^2 det2[A, C] + |C|^2 det2[A, B]: |W2| < 3 * 3 * 2^46 * 2^47
+ *    < 2^97 (int128); the hull plane normal (b - a) x (c - a): components < 2^47 (int64).
+ *
+ * ALGORITHM (speed only; any correct algorithm gives the same arrays): duplicates are merged after a stable LSD
+ * radix sort of the points by (x, y, z); the points are translated and divided by the largest power of two that
+ * divides every coordinate difference (every predicate is a homogeneous polynomial of differences and the ranks
+ * do not change, so no sign changes; grid-quantized points then have small coordinates and most predicates are
+ * exact in binary64). Insertion order: BRIO (rounds drawn from a fixed hash of the rank) with a 3-D Hilbert
+ * order inside each round. Bowyer-Watson: the first tet from 4 affinely independent points plus 4 ghost tets;
+ * each point is located by a visibility walk from the last created tet (faces tried in a fixed pseudo-random
+ * order), the cavity of conflicting tets grown by breadth-first search, its boundary starred from the point.
+ * Predicates: binary64 first with a forward error bound on the permanent (Shewchuk-style semi-static filter;
+ * exact as it stands when the permanent is below 2^53), 128-bit integers when the filter cannot decide.
+ * Flat arrays: tet vertices int32 x 4, neighbours int32 x 4 encoded as tet * 4 + face, a free list of deleted tets.
+ * The GIL is released during the computation.
+ */
+#define PY_SSIZE_T_CLEAN
+#include <Python.h>
+
+#include <math.h>
+#include <stdint.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "_native_sort.h"
+
+#define MAX_BITS 23
+#define MAX_POINTS (1 << 26)
+/* tets (ghosts included) allowed per distinct point, beyond a constant: ~7 for ordinary sets */
+#define TETS_PER_POINT 64
+#define TETS_EXTRA 4096
+
+typedef __int128 i128;
+
+/* Forward error bounds of the binary64 filters, relative to the computed permanent. orient3d: differences and 2x2
+ * minors are exact, 3 roundings remain (<= 3.01 u, u = 2^-53); insphere: lifts, differences and 2x2 minors are
+ * exact, at most 7 roundings on any path (<= 7.1 u). Both with a margin of ~3x. */
+#define ORIENT_BOUND 1e-15
+#define INSPHERE_BOUND 2.5e-15
+#define EXACT_DOUBLE 9007199254740992.0 /* 2^53: a permanent below it means every operation was exact */
+
+enum { OK = 0, ERR_MEMORY = 1, ERR_FLAT = 2, ERR_WALK = 3, ERR_TOO_MANY = 4 };
+
+/* Faces: face k of a tet is opposite its vertex k. Hull face of a ghost tet whose infinite vertex is at slot k,
+ * oriented outward (the reverse of the face's orientation in a positively oriented tet). */
+static const int HULL_FACE[4][3] = {{1, 3, 2}, {0, 2, 3}, {0, 3, 1}, {0, 1, 2}};
+
+/* ----------------------------------------------------------------------------------------------------------- */
+/* predicates on the (translated, scaled) coordinates; a vertex is a pointer to 3 doubles holding integers */
+
+static int orient_exact(const double *a, const double *b, const double *c, const double *d) {
+    int64_t bx = (int64_t)b[0] - (int64_t)a[0], by = (int64_t)b[1] - (int64_t)a[1], bz = (int64_t)b[2] - (int64_t)a[2];
+    int64_t cx = (int64_t)c[0] - (int64_t)a[0], cy = (int64_t)c[1] - (int64_t)a[1], cz = (int64_t)c[2] - (int64_t)a[2];
+    int64_t dx = (int64_t)d[0] - (int64_t)a[0], dy = (int64_t)d[1] - (int64_t)a[1], dz = (int64_t)d[2] - (int64_t)a[2];
+    i128 det = (i128)bx * (cy * dz - cz * dy) + (i128)by * (cz * dx - cx * dz) + (i128)bz * (cx * dy - cy * dx);
+    return (det > 0) - (det < 0);
+}
+
+/* sign det[b - a, c - a, d - a] */
+static inline int orient3d(const double *a, const double *b, const double *c, const double *d) {
+    double bx = b[0] - a[0], by = b[1] - a[1], bz = b[2] - a[2];
+    double cx = c[0] - a[0], cy = c[1] - a[1], cz = c[2] - a[2];
+    double dx = d[0] - a[0], dy = d[1] - a[1], dz = d[2] - a[2];
+    double t1 = bx * (cy * dz - cz * dy), t2 = by * (cz * dx - cx * dz), t3 = bz * (cx * dy - cy * dx);
+    double det = t1 + t2 + t3;
+    double perm = fabs(t1) + fabs(t2) + fabs(t3);
+    double bound = ORIENT_BOUND * perm;
+    if (det > bound) return 1;
+    if (-det > bound) return -1;
+    if (perm < EXACT_DOUBLE) return (det > 0) - (det < 0);
+    return orient_exact(a, b, c, d);
+}
+
+static int insphere_exact(const double *a, const double *b, const double *c, const double *d, const double *e) {
+    int64_t ax = (int64_t)a[0] - (int64_t)e[0], ay = (int64_t)a[1] - (int64_t)e[1], az = (int64_t)a[2] - (int64_t)e[2];
+    int64_t bx = (int64_t)b[0] - (int64_t)e[0], by = (int64_t)b[1] - (int64_t)e[1], bz = (int64_t)b[2] - (int64_t)e[2];
+    int64_t cx = (int64_t)c[0] - (int64_t)e[0], cy = (int64_t)c[1] - (int64_t)e[1], cz = (int64_t)c[2] - (int64_t)e[2];
+    int64_t dx = (int64_t)d[0] - (int64_t)e[0], dy = (int64_t)d[1] - (int64_t)e[1], dz = (int64_t)d[2] - (int64_t)e[2];
+    int64_t ab = ax * by - bx * ay, ac = ax * cy - cx * ay, ad = ax * dy - dx * ay;
+    int64_t bc = bx * cy - cx * by, bd = bx * dy - dx * by, cd = cx * dy - dx * cy;
+    i128 abc = (i128)az * bc - (i128)bz * ac + (i128)cz * ab;
+    i128 bcd = (i128)bz * cd - (i128)cz * bd + (i128)dz * bc;
+    i128 acd = (i128)az * cd - (i128)cz * ad + (i128)dz * ac;
+    i128 abd = (i128)az * bd - (i128)bz * ad + (i128)dz * ab;
+    int64_t la = ax * ax + ay * ay + az * az, lb = bx * bx + by * by + bz * bz;
+    int64_t lc = cx * cx + cy * cy + cz * cz, ld = dx * dx + dy * dy + dz * dz;
+    i128 w = la * bcd - lb * acd + lc * abd - ld * abc;
+    return (w > 0) - (w < 0);
+}
+
+/* sign of W (module docstring, rule 3): > 0 iff e is strictly inside the sphere through a, b, c, d (for a
+ * positively oriented tet) */
+static inline int insphere_w(const double *a, const double *b, const double *c, const double *d, const double *e) {
+    double ax = a[0] - e[0], ay = a[1] - e[1], az = a[2] - e[2];
+    double bx = b[0] - e[0], by = b[1] - e[1], bz = b[2] - e[2];
+    double cx = c[0] - e[0], cy = c[1] - e[1], cz = c[2] - e[2];
+    double dx = d[0] - e[0], dy = d[1] - e[1], dz = d[2] - e[2];
+    double ab = ax * by - bx * ay, ac = ax * cy - cx * ay, ad = ax * dy - dx * ay;
+    double bc = bx * cy - cx * by, bd = bx * dy - dx * by, cd = cx * dy - dx * cy;
+    double abc = az * bc - bz * ac + cz * ab;
+    double bcd = bz * cd - cz * bd + dz * bc;
+    double acd = az * cd - cz * ad + dz * ac;
+    double abd = az * bd - bz * ad + dz * ab;
+    double pabc = fabs(az * bc) + fabs(bz * ac) + fabs(cz * ab);
+    double pbcd = fabs(bz * cd) + fabs(cz * bd) + fabs(dz * bc);
+    double pacd = fabs(az * cd) + fabs(cz * ad) + fabs(dz * ac);
+    double pabd = fabs(az * bd) + fabs(bz * ad) + fabs(dz * ab);
+    double la = ax * ax + ay * ay + az * az, lb = bx * bx + by * by + bz * bz;
+    double lc = cx * cx + cy * cy + cz * cz, ld = dx * dx + dy * dy + dz * dz;
+    double w = la * bcd - lb * acd + lc * abd - ld * abc;
+    double perm = la * pbcd + lb * pacd + lc * pabd + ld * pabc;
+    double bound = INSPHERE_BOUND * perm;
+    if (w > bound) return 1;
+    if (-w > bound) return -1;
+    if (perm < EXACT_DOUBLE) return (w > 0) - (w < 0);
+    return insphere_exact(a, b, c, d, e);
+}
+
+/* ----------------------------------------------------------------------------------------------------------- */
+/* the triangulation */
+
+typedef struct {
+    int32_t n;      /* distinct points; vertex n is the infinite vertex */
+    double *x;      /* 3 n coordinates, translated and scaled */
+    int32_t *tv;    /* 4 vertices per tet; tv[4 t] = -1: a deleted tet */
+    int32_t *tn;    /* 4 neighbours per tet: u * 4 + g, face g of tet u */
+    uint32_t *mark; /* per tet: 2 * stamp (in the cavity) or 2 * stamp + 1 (tested, not in conflict) */
+    int64_t cap, count, max_tets;
+    int32_t *free_list;
+    int64_t nfree, free_cap;
+    /* per insertion scratch */
+    int32_t *stack;
+    int64_t stack_cap;
+    int32_t *bnd; /* boundary records: v[4], face, outside neighbour code: 6 ints each */
+    int64_t bnd_cap;
+    uint64_t *hkeys;
+    int32_t *hvals;
+    uint32_t *hstamp;
+    int64_t hcap;
+    uint32_t stamp;
+    uint64_t rng;
+    int32_t last; /* a finite tet created by the last insertion */
+} DT;
+
+static int grow(void **p, int64_t *cap, int64_t need, size_t item) {
+    if (need <= *cap) return OK;
+    int64_t c = *cap ? *cap : 64;
+    while (c < need) c *= 2;
+    void *q = realloc(*p, (size_t)c * item);
+    if (!q) return ERR_MEMORY;
+    *p = q;
+    *cap = c;
+    return OK;
+}
+
+static int new_tet(DT *dt, int32_t *out) {
+    if (dt->nfree) {
+        *out = dt->free_list[--dt->nfree];
+        return OK;
+    }
+    if (dt->count >= dt->max_tets) return ERR_TOO_MANY;
+    if (dt->count >= dt->cap) {
+        int64_t c = dt->cap ? dt->cap * 2 : 1024;
+        if (c > dt->max_tets) c = dt->max_tets;
+        int32_t *tv = realloc(dt->tv, (size_t)c * 4 * sizeof(int32_t));
+        if (!tv) return ERR_MEMORY;
+        dt->tv = tv;
+        int32_t *tn = realloc(dt->tn, (size_t)c * 4 * sizeof(int32_t));
+        if (!tn) return ERR_MEMORY;
+        dt->tn = tn;
+        uint32_t *mk = realloc(dt->mark, (size_t)c * sizeof(uint32_t));
+        if (!mk) return ERR_MEMORY;
+        dt->mark = mk;
+        dt->cap = c;
+    }
+    *out = (int32_t)dt->count++;
+    return OK;
+}
+
+static inline uint64_t xorshift(uint64_t *s) {
+    uint64_t x = *s;
+    x ^= x << 13;
+    x ^= x >> 7;
+    x ^= x << 17;
+    *s = x;
+    return x;
+}
+
+static inline const double *P(const DT *dt, int32_t v) { return dt->x + 3 * (int64_t)v; }
+
+/* Does q conflict with the finite, positively oriented tet t? (rule 3) */
+static int conflict_finite(const DT *dt, const int32_t *v, int32_t q) {
+    const double *pq = P(dt, q);
+    int s = insphere_w(P(dt, v[0]), P(dt, v[1]), P(dt, v[2]), P(dt, v[3]), pq);
+    if (s) return s > 0;
+    /* symbolic perturbation: the five points in descending rank (= vertex id) */
+    int32_t ids[5] = {v[0], v[1], v[2], v[3], q};
+    int slot[5] = {0, 1, 2, 3, 4};
+    for (int i = 1; i < 5; i++) /* insertion sort, descending id */
+        for (int j = i; j > 0 && ids[slot[j]] > ids[slot[j - 1]]; j--) {
+            int t = slot[j];
+            slot[j] = slot[j - 1];
+            slot[j - 1] = t;
+        }
+    for (int i = 0; i < 5; i++) {
+        int k = slot[i];
+        if (k == 4) return 0;
+        const double *p[4] = {P(dt, v[0]), P(dt, v[1]), P(dt, v[2]), P(dt, v[3])};
+        p[k] = pq;
+        int o = orient3d(p[0], p[1], p[2], p[3]);
+        if (o) return o > 0;
+    }
+    return 0; /* not reached */
+}
+
+/* q on the plane of the triangle (a, b, c) (ids): inside its perturbed circumcircle? (rule 4) */
+static int conflict_coplanar(const DT *dt, int32_t ia, int32_t ib, int32_t ic, int32_t iq) {
+    const double *a = P(dt, ia), *b = P(dt, ib), *c = P(dt, ic), *q = P(dt, iq);
+    int64_t ux = (int64_t)b[0] - (int64_t)a[0], uy = (int64_t)b[1] - (int64_t)a[1], uz = (int64_t)b[2] - (int64_t)a[2];
+    int64_t vx = (int64_t)c[0] - (int64_t)a[0], vy = (int64_t)c[1] - (int64_t)a[1], vz = (int64_t)c[2] - (int64_t)a[2];
+    int64_t n[3] = {uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx};
+    int64_t an[3] = {n[0] < 0 ? -n[0] : n[0], n[1] < 0 ? -n[1] : n[1], n[2] < 0 ? -n[2] : n[2]};
+    int drop = 0;
+    if (an[1] > an[drop]) drop = 1;
+    if (an[2] > an[drop]) drop = 2;
+    int i = drop == 0 ? 1 : 0, j = drop == 2 ? 1 : 2;
+    const double *pts[4] = {a, b, c, q};
+    int64_t du[3], dv[3], lift[3];
+    for (int k = 0; k < 3; k++) {
+        int64_t dx = (int64_t)pts[k][0] - (int64_t)q[0], dy = (int64_t)pts[k][1] - (int64_t)q[1];
+        int64_t dz = (int64_t)pts[k][2] - (int64_t)q[2];
+        int64_t d3[3] = {dx, dy, dz};
+        du[k] = d3[i];
+        dv[k] = d3[j];
+        lift[k] = dx * dx + dy * dy + dz * dz;
+    }
+    int64_t o2 = (int64_t)(b[i] - a[i]) * (int64_t)(c[j] - a[j]) - (int64_t)(b[j] - a[j]) * (int64_t)(c[i] - a[i]);
+    int so2 = (o2 > 0) - (o2 < 0);
+    if (!so2) return 0; /* not reached: a hull triangle is never degenerate */
+    i128 w = (i128)lift[0] * (du[1] * dv[2] - du[2] * dv[1]) - (i128)lift[1] * (du[0] * dv[2] - du[2] * dv[0]) +
+             (i128)lift[2] * (du[0] * dv[1] - du[1] * dv[0]);
+    int sw = (w > 0) - (w < 0);
+    if (sw) return sw * so2 > 0;
+    int32_t ids[4] = {ia, ib, ic, iq};
+    int slot[4] = {0, 1, 2, 3};
+    for (int s = 1; s < 4; s++)
+        for (int t = s; t > 0 && ids[slot[t]] > ids[slot[t - 1]]; t--) {
+            int u = slot[t];
+            slot[t] = slot[t - 1];
+            slot[t - 1] = u;
+        }
+    for (int s = 0; s < 4; s++) {
+        int k = slot[s];
+        if (k == 3) return 0;
+        const double *p[3] = {a, b, c};
+        p[k] = q;
+        int64_t o = (int64_t)(p[1][i] - p[0][i]) * (int64_t)(p[2][j] - p[0][j]) -
+                    (int64_t)(p[1][j] - p[0][j]) * (int64_t)(p[2][i] - p[0][i]);
+        int so = (o > 0) - (o < 0);
+        if (so) return so == so2;
+    }
+    return 0; /* not reached */
+}
+
+/* Does q conflict with tet t (finite or ghost)? */
+static int conflict(const DT *dt, int32_t t, int32_t q) {
+    const int32_t *v = dt->tv + 4 * (int64_t)t;
+    const int32_t inf = dt->n;
+    int k = v[0] == inf ? 0 : v[1] == inf ? 1 : v[2] == inf ? 2 : v[3] == inf ? 3 : -1;
+    if (k < 0) return conflict_finite(dt, v, q);
+    const double *p[4];
+    for (int i = 0; i < 4; i++) p[i] = i == k ? P(dt, q) : P(dt, v[i]);
+    int o = orient3d(p[0], p[1], p[2], p[3]);
+    if (o) return o > 0;
+    int32_t f[3], m = 0;
+    for (int i = 0; i < 4; i++)
+        if (i != k) f[m++] = v[i];
+    return conflict_coplanar(dt, f[0], f[1], f[2], q);
+}
+
+static inline int is_ghost(const DT *dt, int32_t t) {
+    const int32_t *v = dt->tv + 4 * (int64_t)t;
+    return v[0] == dt->n || v[1] == dt->n || v[2] == dt->n || v[3] == dt->n;
+}
+
+/* A tet in conflict with q: a visibility walk from the last created tet to the tet containing q, or to the ghost
+ * tet of a hull face q is strictly outside of. */
+static int locate(DT *dt, int32_t q, int32_t *found) {
+    int32_t t = dt->last;
+    int came = -1;
+    const double *pq = P(dt, q);
+    for (int64_t steps = 0; steps < 4 * dt->count + 64; steps++) {
+        const int32_t *v = dt->tv + 4 * (int64_t)t;
+        int r = (int)(xorshift(&dt->rng) & 3);
+        int moved = 0;
+        for (int j = 0; j < 4; j++) {
+            int f = (r + j) & 3;
+            if (f == came) continue;
+            const double *p[4] = {P(dt, v[0]), P(dt, v[1]), P(dt, v[2]), P(dt, v[3])};
+            p[f] = pq;
+            if (orient3d(p[0], p[1], p[2], p[3]) < 0) {
+                int32_t code = dt->tn[4 * (int64_t)t + f];
+                t = code >> 2;
+                came = code & 3;
+                moved = 1;
+                break;
+            }
+        }
+        if (!moved) {
+            *found = t;
+            return OK;
+        }
+        if (is_ghost(dt, t)) {
+            *found = t;
+            return OK;
+        }
+    }
+    return ERR_WALK;
+}
+
+static inline void glue(DT *dt, int32_t t, int f, int32_t code) {
+    dt->tn[4 * (int64_t)t + f] = code;
+    dt->tn[code] = t * 4 + f;
+}
+
+static int insert(DT *dt, int32_t q) {
+    int32_t seed;
+    int err = locate(dt, q, &seed);
+    if (err) return err;
+    uint32_t in_mark = 2 * dt->stamp, out_mark = 2 * dt->stamp + 1;
+    dt->stamp++;
+    int64_t ns = 0, nb = 0, top = 0;
+    dt->mark[seed] = in_mark;
+    dt->stack[ns++] = seed;
+    /* breadth-first over the conflicting tets; stack[0..ns) is the cavity, top the next one to expand */
+    while (top < ns) {
+        int32_t t = dt->stack[top++];
+        for (int f = 0; f < 4; f++) {
+            int32_t code = dt->tn[4 * (int64_t)t + f];
+            int32_t u = code >> 2;
+            uint32_t m = dt->mark[u];
+            if (m == in_mark) continue;
+            if (m != out_mark) {
+                if (conflict(dt, u, q)) {
+                    dt->mark[u] = in_mark;
+                    if (grow((void **)&dt->stack, &dt->stack_cap, ns + 1, sizeof(int32_t))) return ERR_MEMORY;
+                    dt->stack[ns++] = u;
+                    continue;
+                }
+                dt->mark[u] = out_mark;
+            }
+            if (grow((void **)&dt->bnd, &dt->bnd_cap, 6 * (nb + 1), sizeof(int32_t))) return ERR_MEMORY;
+            int32_t *r = dt->bnd + 6 * nb++;
+            memcpy(r, dt->tv + 4 * (int64_t)t, 4 * sizeof(int32_t));
+            r[f] = q;
+            r[4] = f;
+            r[5] = code;
+        }
+    }
+    /* free the cavity */
+    if (grow((void **)&dt->free_list, &dt->free_cap, dt->nfree + ns, sizeof(int32_t))) return ERR_MEMORY;
+    for (int64_t i = 0; i < ns; i++) {
+        int32_t t = dt->stack[i];
+        dt->tv[4 * (int64_t)t] = -1;
+        dt->free_list[dt->nfree++] = t;
+    }
+    /* edge table for linking the new tets to each other */
+    int64_t need = 4;
+    while (need < 4 * nb) need *= 2;
+    if (need > dt->hcap) {
+        free(dt->hkeys);
+        free(dt->hvals);
+        free(dt->hstamp);
+        dt->hkeys = malloc((size_t)need * sizeof(uint64_t));
+        dt->hvals = malloc((size_t)need * sizeof(int32_t));
+        dt->hstamp = calloc((size_t)need, sizeof(uint32_t));
+        dt->hcap = dt->hkeys && dt->hvals && dt->hstamp ? need : 0;
+        if (!dt->hcap) return ERR_MEMORY;
+    }
+    const uint64_t hmask = (uint64_t)dt->hcap - 1;
+    const uint32_t hs = dt->stamp; /* never 0: stamps start at 1 */
+    const int32_t inf = dt->n;
+    for (int64_t i = 0; i < nb; i++) {
+        const int32_t *r = dt->bnd + 6 * i;
+        int32_t t;
+        if ((err = new_tet(dt, &t))) return err;
+        int f = r[4];
+        memcpy(dt->tv + 4 * (int64_t)t, r, 4 * sizeof(int32_t));
+        dt->mark[t] = 0;
+        glue(dt, t, f, r[5]);
+        if (r[0] != inf && r[1] != inf && r[2] != inf && r[3] != inf) {
+            if (orient3d(P(dt, r[0]), P(dt, r[1]), P(dt, r[2]), P(dt, r[3])) <= 0) return ERR_FLAT;
+            dt->last = t;
+        }
+        for (int g = 0; g < 4; g++) {
+            if (g == f) continue;
+            /* face g holds q and the two vertices at the slots other than f and g */
+            int32_t e[2], m = 0;
+            for (int s = 0; s < 4; s++)
+                if (s != f && s != g) e[m++] = r[s];
+            uint64_t key = e[0] < e[1] ? ((uint64_t)e[0] << 32) | (uint32_t)e[1] : ((uint64_t)e[1] << 32) | (uint32_t)e[0];
+            uint64_t h = (key * 0x9E3779B97F4A7C15ull) >> 20;
+            for (;; h++) {
+                uint64_t s = h & hmask;
+                if (dt->hstamp[s] != hs) {
+                    dt->hstamp[s] = hs;
+                    dt->hkeys[s] = key;
+                    dt->hvals[s] = t * 4 + g;
+                    break;
+                }
+                if (dt->hkeys[s] == key) {
+                    glue(dt, t, g, dt->hvals[s]);
+                    break;
+                }
+            }
+        }
+    }
+    return OK;
+}
+
+/* ----------------------------------------------------------------------------------------------------------- */
+/* ordering */
+
+/* Stable LSD radix sort of perm[0..m) by key(perm[i]) (a 32-bit key with `bits` significant bits). */
+static int radix_perm(uint32_t *perm, uint32_t *tmp, int64_t m, const uint32_t *key, int bits) {
+    enum { D = 12 };
+    int64_t *count = malloc(sizeof(int64_t) << D);
+    if (!count) return ERR_MEMORY;
+    uint32_t *src = perm, *dst = tmp;
+    for (int shift = 0; shift < bits; shift += D) {
+        memset(count, 0, sizeof(int64_t) << D);
+        for (int64_t i = 0; i < m; i++) count[(key[src[i]] >> shift) & ((1u << D) - 1)]++;
+        int64_t sum = 0;
+        for (int d = 0; d < (1 << D); d++) {
+            int64_t c = count[d];
+            count[d] = sum;
+            sum += c;
+        }
+        for (int64_t i = 0; i < m; i++) dst[count[(key[src[i]] >> shift) & ((1u << D) - 1)]++] = src[i];
+        uint32_t *t = src;
+        src = dst;
+        dst = t;
+    }
+    if (src != perm) memcpy(perm, src, (size_t)m * sizeof(uint32_t));
+    free(count);
+    return OK;
+}
+
+/* Skilling's 3-D Hilbert index of (x, y, z), `b` bits each (J. Skilling, AIP Conf. Proc. 707, 2004). */
+static uint64_t hilbert3(uint32_t x0, uint32_t x1, uint32_t x2, int b) {
+    uint32_t X[3] = {x0, x1, x2};
+    uint32_t M = 1u << (b - 1), P_, Q, t;
+    for (Q = M; Q > 1; Q >>= 1) {
+        P_ = Q - 1;
+        for (int i = 0; i < 3; i++) {
+            if (X[i] & Q)
+                X[0] ^= P_;
+            else {
+                t = (X[0] ^ X[i]) & P_;
+                X[0] ^= t;
+                X[i] ^= t;
+            }
+        }
+    }
+    X[1] ^= X[0];
+    X[2] ^= X[1];
+    t = 0;
+    for (Q = M; Q > 1; Q >>= 1)
+        if (X[2] & Q) t ^= Q - 1;
+    for (int i = 0; i < 3; i++) X[i] ^= t;
+    uint64_t key = 0;
+    for (int bit = b - 1; bit >= 0; bit--)
+        for (int i = 0; i < 3; i++) key = (key << 1) | ((X[i] >> bit) & 1u);
+    return key;
+}
+
+static uint64_t splitmix64(uint64_t z) {
+    z += 0x9E3779B97F4A7C15ull;
+    z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ull;
+    z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
+    return z ^ (z >> 31);
+}
+
+#define HILBERT_BITS 10
+#define BRIO_LEVELS 15
+
+/* ----------------------------------------------------------------------------------------------------------- */
+/* output */
+
+typedef struct {
+    int64_t v[4];
+} Row;
+
+static int cmp_row3(const void *pa, const void *pb) {
+    const Row *a = pa, *b = pb;
+    for (int i = 1; i < 4; i++)
+        if (a->v[i] != b->v[i]) return a->v[i] < b->v[i] ? -1 : 1;
+    return 0;
+}
+
+/* Sort rows (width 3 or 4, v[0] the row's smallest entry, < n) lexicographically: a counting sort by v[0], then
+ * each group by the rest (insertion sort, qsort for large groups). */
+static int sort_rows(Row *rows, int64_t m, int64_t n) {
+    if (m < 2) return OK;
+    int64_t *start = calloc((size_t)n + 1, sizeof(int64_t));
+    Row *tmp = malloc((size_t)m * sizeof(Row));
+    if (!start || !tmp) {
+        free(start);
+        free(tmp);
+        return ERR_MEMORY;
+    }
+    for (int64_t i = 0; i < m; i++) start[rows[i].v[0] + 1]++;
+    for (int64_t k = 0; k < n; k++) start[k + 1] += start[k];
+    for (int64_t i = 0; i < m; i++) tmp[start[rows[i].v[0]]++] = rows[i];
+    int64_t lo = 0;
+    for (int64_t k = 0; k < n; k++) {
+        int64_t hi = start[k];
+        if (hi - lo > 32)
+            qsort(tmp + lo, (size_t)(hi - lo), sizeof(Row), cmp_row3);
+        else
+            for (int64_t i = lo + 1; i < hi; i++) {
+                Row r = tmp[i];
+                int64_t j = i;
+                while (j > lo && cmp_row3(&tmp[j - 1], &r) > 0) {
+                    tmp[j] = tmp[j - 1];
+                    j--;
+                }
+                tmp[j] = r;
+            }
+        lo = hi;
+    }
+    memcpy(rows, tmp, (size_t)m * sizeof(Row));
+    free(start);
+    free(tmp);
+    return OK;
+}
+
+/* (a, b, c, d) positively oriented -> the even permutation with the smallest first, the next smallest second */
+static void canonical_tet(int64_t *v) {
+    int k = 0;
+    for (int i = 1; i < 4; i++)
+        if (v[i] < v[k]) k = i;
+    int64_t a = v[0], b = v[1], c = v[2], d = v[3];
+    int64_t w[4];
+    switch (k) { /* double transpositions: even */
+    case 0: w[0] = a, w[1] = b, w[2] = c, w[3] = d; break;
+    case 1: w[0] = b, w[1] = a, w[2] = d, w[3] = c; break;
+    case 2: w[0] = c, w[1] = d, w[2] = a, w[3] = b; break;
+    default: w[0] = d, w[1] = c, w[2] = b, w[3] = a; break;
+    }
+    /* rotate the last three (a 3-cycle: even) so that the smallest comes first */
+    int j = 1;
+    if (w[2] < w[j]) j = 2;
+    if (w[3] < w[j]) j = 3;
+    v[0] = w[0];
+    v[1] = w[j];
+    v[2] = w[j == 3 ? 1 : j + 1];
+    v[3] = w[j == 1 ? 3 : j - 1];
+}
+
+static void canonical_tri(int64_t *v) {
+    int k = 0;
+    if (v[1] < v[k]) k = 1;
+    if (v[2] < v[k]) k = 2;
+    int64_t a = v[k], b = v[(k + 1) % 3], c = v[(k + 2) % 3];
+    v[0] = a, v[1] = b, v[2] = c;
+}
+
+/* ----------------------------------------------------------------------------------------------------------- */
+/* the whole computation, without the GIL */
+
+typedef struct {
+    Row *tets, *hull;
+    int64_t nt, nh;
+} Result;
+
+static void dt_free(DT *dt) {
+    free(dt->x);
+    free(dt->tv);
+    free(dt->tn);
+    free(dt->mark);
+    free(dt->free_list);
+    free(dt->stack);
+    free(dt->bnd);
+    free(dt->hkeys);
+    free(dt->hvals);
+    free(dt->hstamp);
+}
+
+static int run(const int64_t *cells, int64_t n_in, Result *res) {
+    int err = OK;
+    DT dt;
+    memset(&dt, 0, sizeof dt);
+    memset(res, 0, sizeof *res);
+    uint32_t *perm = NULL, *tmp = NULL, *key = NULL, *orig = NULL;
+    uint64_t *order = NULL, *otmp = NULL;
+    if (n_in < 4) return OK;
+    perm = malloc((size_t)n_in * sizeof(uint32_t));
+    tmp = malloc((size_t)n_in * sizeof(uint32_t));
+    key = malloc((size_t)n_in * sizeof(uint32_t));
+    if (!perm || !tmp || !key) goto nomem;
+    /* 1-2: lexicographic ranks (stable: of equal points the lowest index comes first) */
+    for (int64_t i = 0; i < n_in; i++) perm[i] = (uint32_t)i;
+    for (int axis = 2; axis >= 0; axis--) {
+        for (int64_t i = 0; i < n_in; i++) key[i] = (uint32_t)cells[3 * i + axis];
+        if (radix_perm(perm, tmp, n_in, key, MAX_BITS)) goto nomem;
+    }
+    free(key);
+    key = NULL;
+    int64_t m = 0;
+    for (int64_t i = 0; i < n_in; i++) {
+        const int64_t *c = cells + 3 * (int64_t)perm[i];
+        if (m) {
+            const int64_t *p = cells + 3 * (int64_t)perm[m - 1];
+            if (p[0] == c[0] && p[1] == c[1] && p[2] == c[2]) continue;
+        }
+        perm[m++] = perm[i]; /* perm[0..m): original index of rank r */
+    }
+    orig = perm;
+    perm = NULL;
+    if (m < 4) goto done;
+    dt.n = (int32_t)m;
+    dt.x = malloc((size_t)(m + 1) * 3 * sizeof(double));
+    if (!dt.x) goto nomem;
+    int64_t lo[3], hi[3];
+    for (int a = 0; a < 3; a++) lo[a] = hi[a] = cells[3 * (int64_t)orig[0] + a];
+    uint64_t diff_bits = 0;
+    for (int64_t r = 0; r < m; r++)
+        for (int a = 0; a < 3; a++) {
+            int64_t c = cells[3 * (int64_t)orig[r] + a];
+            if (c < lo[a]) lo[a] = c;
+            if (c > hi[a]) hi[a] = c;
+            diff_bits |= (uint64_t)(c - cells[3 * (int64_t)orig[0] + a]);
+        }
+    int shift = 0;
+    while (shift < MAX_BITS && !((diff_bits >> shift) & 1)) shift++;
+    for (int64_t r = 0; r < m; r++)
+        for (int a = 0; a < 3; a++) dt.x[3 * r + a] = (double)((cells[3 * (int64_t)orig[r] + a] - lo[a]) >> shift);
+    dt.x[3 * m] = dt.x[3 * m + 1] = dt.x[3 * m + 2] = 0.0;
+    /* insertion order: BRIO rounds, Hilbert order inside each */
+    int64_t span = 1;
+    for (int a = 0; a < 3; a++)
+        if (((hi[a] - lo[a]) >> shift) + 1 > span) span = ((hi[a] - lo[a]) >> shift) + 1;
+    order = malloc((size_t)m * sizeof(uint64_t));
+    otmp = malloc((size_t)m * sizeof(uint64_t));
+    if (!order || !otmp) goto nomem;
+    for (int64_t r = 0; r < m; r++) {
+        uint32_t h[3];
+        for (int a = 0; a < 3; a++) h[a] = (uint32_t)(((int64_t)dt.x[3 * r + a] << HILBERT_BITS) / span);
+        uint64_t z = splitmix64((uint64_t)r);
+        int tz = 0;
+        while (tz < BRIO_LEVELS && !((z >> tz) & 1)) tz++;
+        uint64_t round = (uint64_t)(BRIO_LEVELS - tz);
+        order[r] = (round << 56) | (hilbert3(h[0], h[1], h[2], HILBERT_BITS) << 26) | (uint64_t)r;
+    }
+    radix_sort(order, otmp, m, 60);
+    free(otmp);
+    otmp = NULL;
+    for (int64_t i = 0; i < m; i++) order[i] &= (1u << 26) - 1;
+    /* first tet: 4 affinely independent points, in insertion order */
+    int64_t pick[4] = {0, 1, -1, -1};
+    {
+        const double *a = dt.x + 3 * order[0], *b = dt.x + 3 * order[1];
+        int64_t ux = (int64_t)(b[0] - a[0]), uy = (int64_t)(b[1] - a[1]), uz = (int64_t)(b[2] - a[2]);
+        for (int64_t i = 2; i < m && pick[2] < 0; i++) {
+            const double *c = dt.x + 3 * order[i];
+            int64_t vx = (int64_t)(c[0] - a[0]), vy = (int64_t)(c[1] - a[1]), vz = (int64_t)(c[2] - a[2]);
+            if (uy * vz - uz * vy || uz * vx - ux * vz || ux * vy - uy * vx) pick[2] = i;
+        }
+        if (pick[2] < 0) goto done; /* collinear */
+        const double *c = dt.x + 3 * order[pick[2]];
+        for (int64_t i = pick[2] + 1; i < m && pick[3] < 0; i++)
+            if (orient3d(a, b, c, dt.x + 3 * order[i])) pick[3] = i;
+        if (pick[3] < 0) goto done; /* coplanar */
+    }
+    dt.max_tets = TETS_PER_POINT * m + TETS_EXTRA;
+    if (dt.max_tets > (1 << 29)) dt.max_tets = 1 << 29; /* tet * 4 + face fits int32 */
+    dt.rng = 0x2545F4914F6CDD1Dull;
+    dt.stamp = 1;
+    if (grow((void **)&dt.stack, &dt.stack_cap, 256, sizeof(int32_t))) goto nomem;
+    {
+        int32_t v[4];
+        for (int i = 0; i < 4; i++) v[i] = (int32_t)order[pick[i]];
+        if (orient3d(P(&dt, v[0]), P(&dt, v[1]), P(&dt, v[2]), P(&dt, v[3])) < 0) {
+            int32_t t = v[0];
+            v[0] = v[1];
+            v[1] = t;
+        }
+        int32_t ids[5];
+        for (int i = 0; i < 5; i++)
+            if ((err = new_tet(&dt, &ids[i]))) goto fail;
+        memcpy(dt.tv, v, sizeof v);
+        for (int i = 0; i < 4; i++) {
+            int32_t *g = dt.tv + 4 * (int64_t)ids[i + 1];
+            memcpy(g, v, sizeof v);
+            g[i] = dt.n;
+            int s0 = i == 0 ? 1 : 0, s1 = i <= 1 ? 2 : 1; /* the two lowest slots other than i: swap them */
+            int32_t t = g[s0];
+            g[s0] = g[s1];
+            g[s1] = t;
+        }
+        for (int i = 0; i < 5; i++) dt.mark[ids[i]] = 0;
+        /* link faces with equal vertex sets */
+        for (int t = 0; t < 5; t++)
+            for (int f = 0; f < 4; f++)
+                for (int u = t + 1; u < 5; u++)
+                    for (int g = 0; g < 4; g++) {
+                        int32_t a[3], b[3], na = 0, nb2 = 0;
+                        for (int s = 0; s < 4; s++) {
+                            if (s != f) a[na++] = dt.tv[4 * t + s];
+                            if (s != g) b[nb2++] = dt.tv[4 * u + s];
+                        }
+                        int same = 1;
+                        for (int s = 0; s < 3 && same; s++)
+                            same = a[s] == b[0] || a[s] == b[1] || a[s] == b[2];
+                        if (same) glue(&dt, t, f, u * 4 + g);
+                    }
+        dt.last = 0;
+    }
+    for (int64_t i = 2; i < m; i++) {
+        if (i == pick[2] || i == pick[3]) continue;
+        if ((err = insert(&dt, (int32_t)order[i]))) goto fail;
+    }
+    /* 5: output */
+    int64_t nt = 0, nh = 0;
+    for (int64_t t = 0; t < dt.count; t++) {
+        if (dt.tv[4 * t] < 0) continue;
+        if (is_ghost(&dt, (int32_t)t))
+            nh++;
+        else
+            nt++;
+    }
+    res->tets = malloc((size_t)(nt ? nt : 1) * sizeof(Row));
+    res->hull = malloc((size_t)(nh ? nh : 1) * sizeof(Row));
+    if (!res->tets || !res->hull) goto nomem;
+    for (int64_t t = 0; t < dt.count; t++) {
+        const int32_t *v = dt.tv + 4 * t;
+        if (v[0] < 0) continue;
+        int k = v[0] == dt.n ? 0 : v[1] == dt.n ? 1 : v[2] == dt.n ? 2 : v[3] == dt.n ? 3 : -1;
+        if (k < 0) {
+            Row *r = res->tets + res->nt++;
+            for (int i = 0; i < 4; i++) r->v[i] = orig[v[i]];
+            canonical_tet(r->v);
+        } else {
+            Row *r = res->hull + res->nh++;
+            for (int i = 0; i < 3; i++) r->v[i] = orig[v[HULL_FACE[k][i]]];
+            r->v[3] = 0;
+            canonical_tri(r->v);
+            /* sort_rows compares v[1..3]: put the third entry last with v[3] = v[2] so the order is (v1, v2) */
+            r->v[3] = r->v[2];
+        }
+    }
+    if (sort_rows(res->tets, res->nt, n_in) || sort_rows(res->hull, res->nh, n_in)) goto nomem;
+    goto done;
+nomem:
+    err = ERR_MEMORY;
+fail:
+    free(res->tets);
+    free(res->hull);
+    memset(res, 0, sizeof *res);
+done:
+    free(perm);
+    free(tmp);
+    free(key);
+    free(orig);
+    free(order);
+    free(otmp);
+    dt_free(&dt);
+    return err;
+}
+
+/* ----------------------------------------------------------------------------------------------------------- */
+/* Python */
+
+static PyObject *py_tetrahedralize(PyObject *self, PyObject *args) {
+    (void)self;
+    PyObject *obj;
+    if (!PyArg_ParseTuple(args, "O", &obj)) return NULL;
+    Py_buffer view;
+    if (PyObject_GetBuffer(obj, &view, PyBUF_C_CONTIGUOUS | PyBUF_FORMAT) != 0) return NULL;
+    const char *f = view.format ? view.format : "B";
+    if (*f == '<' || *f == '=' || *f == '@') f++;
+    if (view.itemsize != 8 || (f[0] != 'q' && f[0] != 'l') || f[1] != '\0' || view.len % 24) {
+        PyBuffer_Release(&view);
+        PyErr_SetString(PyExc_ValueError, "_delaunay_native: cells must be a C-contiguous int64 (N, 3) buffer");
+        return NULL;
+    }
+    const int64_t *cells = (const int64_t *)view.buf;
+    int64_t n = view.len / 24;
+    if (n > MAX_POINTS) {
+        PyBuffer_Release(&view);
+        PyErr_Format(PyExc_ValueError, "at most %d points can be tetrahedralized, got %lld", MAX_POINTS, (long long)n);
+        return NULL;
+    }
+    for (int64_t i = 0; i < 3 * n; i++)
+        if (cells[i] < 0 || cells[i] >= ((int64_t)1 << MAX_BITS)) {
+            PyBuffer_Release(&view);
+            PyErr_Format(PyExc_ValueError, "cell coordinates must lie in [0, 2^%d), got %lld", MAX_BITS,
+                         (long long)cells[i]);
+            return NULL;
+        }
+    Result res;
+    int err;
+    Py_BEGIN_ALLOW_THREADS err = run(cells, n, &res);
+    Py_END_ALLOW_THREADS PyBuffer_Release(&view);
+    if (err) {
+        if (err == ERR_MEMORY)
+            PyErr_NoMemory();
+        else if (err == ERR_TOO_MANY)
+            PyErr_Format(PyExc_MemoryError,
+                         "the Delaunay tetrahedralization of %lld points needs more than %d tets per point (a "
+                         "degenerate point set)",
+                         (long long)n, TETS_PER_POINT);
+        else if (err == ERR_FLAT)
+            PyErr_SetString(PyExc_RuntimeError, "flat tet: a new tet has no volume (inconsistent predicates)");
+        else
+            PyErr_SetString(PyExc_RuntimeError, "walk: point location did not terminate");
+        return NULL;
+    }
+    PyObject *tets = PyByteArray_FromStringAndSize(NULL, (Py_ssize_t)(res.nt * 32));
+    PyObject *hull = PyByteArray_FromStringAndSize(NULL, (Py_ssize_t)(res.nh * 24));
+    if (tets && hull) {
+        int64_t *out = (int64_t *)PyByteArray_AS_STRING(tets);
+        for (int64_t i = 0; i < res.nt; i++) memcpy(out + 4 * i, res.tets[i].v, 32);
+        out = (int64_t *)PyByteArray_AS_STRING(hull);
+        for (int64_t i = 0; i < res.nh; i++) memcpy(out + 3 * i, res.hull[i].v, 24);
+    }
+    free(res.tets);
+    free(res.hull);
+    if (!tets || !hull) {
+        Py_XDECREF(tets);
+        Py_XDECREF(hull);
+        return NULL;
+    }
+    return Py_BuildValue("(NN)", tets, hull);
+}
+
+static PyMethodDef methods[] = {
+    {"tetrahedralize", py_tetrahedralize, METH_VARARGS,
+     "tetrahedralize(cells int64 (N, 3) buffer) -> (tets, hull_faces) bytearrays of int64 (module docstring)"},
+    {NULL, NULL, 0, NULL},
+};
+
+static struct PyModuleDef module = {
+    PyModuleDef_HEAD_INIT, "_delaunay_native",
+    "Exact 3-D Delaunay tetrahedralization of integer points under a fixed symbolic perturbation "
+    "(geometry/delaunay.py).",
+    -1, methods,
+};
+
+PyMODINIT_FUNC PyInit__delaunay_native(void) { return PyModule_Create(&module); }
