@@ -98,6 +98,21 @@
 
 typedef __int128 i128;
 
+#ifdef DT_STATS
+#include <stdio.h>
+#include <time.h>
+static double now(void) {
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return ts.tv_sec + 1e-9 * ts.tv_nsec;
+}
+static double t_prep, t_ins, t_out;
+static int64_t st_orient, st_orient_exact, st_insph, st_insph_exact, st_walk, st_cav, st_bnd, st_sym;
+#define STAT(x) (x++)
+#else
+#define STAT(x) ((void)0)
+#endif
+
 /* Forward error bounds of the binary64 filters, relative to the computed permanent. orient3d: differences and 2x2
  * minors are exact, 3 roundings remain (<= 3.01 u, u = 2^-53); insphere: lifts, differences and 2x2 minors are
  * exact, at most 7 roundings on any path (<= 7.1 u). Both with a margin of ~3x. */
@@ -115,6 +130,7 @@ static const int HULL_FACE[4][3] = {{1, 3, 2}, {0, 2, 3}, {0, 3, 1}, {0, 1, 2}};
 /* predicates on the (translated, scaled) coordinates; a vertex is a pointer to 3 doubles holding integers */
 
 static int orient_exact(const double *a, const double *b, const double *c, const double *d) {
+    STAT(st_orient_exact);
     int64_t bx = (int64_t)b[0] - (int64_t)a[0], by = (int64_t)b[1] - (int64_t)a[1], bz = (int64_t)b[2] - (int64_t)a[2];
     int64_t cx = (int64_t)c[0] - (int64_t)a[0], cy = (int64_t)c[1] - (int64_t)a[1], cz = (int64_t)c[2] - (int64_t)a[2];
     int64_t dx = (int64_t)d[0] - (int64_t)a[0], dy = (int64_t)d[1] - (int64_t)a[1], dz = (int64_t)d[2] - (int64_t)a[2];
@@ -124,6 +140,7 @@ static int orient_exact(const double *a, const double *b, const double *c, const
 
 /* sign det[b - a, c - a, d - a] */
 static inline int orient3d(const double *a, const double *b, const double *c, const double *d) {
+    STAT(st_orient);
     double bx = b[0] - a[0], by = b[1] - a[1], bz = b[2] - a[2];
     double cx = c[0] - a[0], cy = c[1] - a[1], cz = c[2] - a[2];
     double dx = d[0] - a[0], dy = d[1] - a[1], dz = d[2] - a[2];
@@ -138,6 +155,7 @@ static inline int orient3d(const double *a, const double *b, const double *c, co
 }
 
 static int insphere_exact(const double *a, const double *b, const double *c, const double *d, const double *e) {
+    STAT(st_insph_exact);
     int64_t ax = (int64_t)a[0] - (int64_t)e[0], ay = (int64_t)a[1] - (int64_t)e[1], az = (int64_t)a[2] - (int64_t)e[2];
     int64_t bx = (int64_t)b[0] - (int64_t)e[0], by = (int64_t)b[1] - (int64_t)e[1], bz = (int64_t)b[2] - (int64_t)e[2];
     int64_t cx = (int64_t)c[0] - (int64_t)e[0], cy = (int64_t)c[1] - (int64_t)e[1], cz = (int64_t)c[2] - (int64_t)e[2];
@@ -157,6 +175,7 @@ static int insphere_exact(const double *a, const double *b, const double *c, con
 /* sign of W (module docstring, rule 3): > 0 iff e is strictly inside the sphere through a, b, c, d (for a
  * positively oriented tet) */
 static inline int insphere_w(const double *a, const double *b, const double *c, const double *d, const double *e) {
+    STAT(st_insph);
     double ax = a[0] - e[0], ay = a[1] - e[1], az = a[2] - e[2];
     double bx = b[0] - e[0], by = b[1] - e[1], bz = b[2] - e[2];
     double cx = c[0] - e[0], cy = c[1] - e[1], cz = c[2] - e[2];
@@ -188,8 +207,9 @@ static inline int insphere_w(const double *a, const double *b, const double *c, 
 typedef struct {
     int32_t n;      /* distinct points; vertex n is the infinite vertex */
     double *x;      /* 3 n coordinates, translated and scaled */
-    int32_t *tv;    /* 4 vertices per tet; tv[4 t] = -1: a deleted tet */
-    int32_t *tn;    /* 4 neighbours per tet: u * 4 + g, face g of tet u */
+    int32_t *rank;  /* lexicographic rank of each vertex (vertices are numbered in insertion order) */
+    int32_t *tt;    /* 8 per tet: its 4 vertices (TV; the first -1: a deleted tet), then its 4 neighbours (TN:
+                       u * 4 + g, face g of tet u), one cache line per two tets */
     uint32_t *mark; /* per tet: 2 * stamp (in the cavity) or 2 * stamp + 1 (tested, not in conflict) */
     int64_t cap, count, max_tets;
     int32_t *free_list;
@@ -207,6 +227,9 @@ typedef struct {
     uint64_t rng;
     int32_t last; /* a finite tet created by the last insertion */
 } DT;
+
+#define TV(dt, t) ((dt)->tt + 8 * (int64_t)(t))
+#define TN(dt, t, f) ((dt)->tt[8 * (int64_t)(t) + 4 + (f)])
 
 static int grow(void **p, int64_t *cap, int64_t need, size_t item) {
     if (need <= *cap) return OK;
@@ -228,12 +251,9 @@ static int new_tet(DT *dt, int32_t *out) {
     if (dt->count >= dt->cap) {
         int64_t c = dt->cap ? dt->cap * 2 : 1024;
         if (c > dt->max_tets) c = dt->max_tets;
-        int32_t *tv = realloc(dt->tv, (size_t)c * 4 * sizeof(int32_t));
-        if (!tv) return ERR_MEMORY;
-        dt->tv = tv;
-        int32_t *tn = realloc(dt->tn, (size_t)c * 4 * sizeof(int32_t));
-        if (!tn) return ERR_MEMORY;
-        dt->tn = tn;
+        int32_t *tt = realloc(dt->tt, (size_t)c * 8 * sizeof(int32_t));
+        if (!tt) return ERR_MEMORY;
+        dt->tt = tt;
         uint32_t *mk = realloc(dt->mark, (size_t)c * sizeof(uint32_t));
         if (!mk) return ERR_MEMORY;
         dt->mark = mk;
@@ -259,8 +279,10 @@ static int conflict_finite(const DT *dt, const int32_t *v, int32_t q) {
     const double *pq = P(dt, q);
     int s = insphere_w(P(dt, v[0]), P(dt, v[1]), P(dt, v[2]), P(dt, v[3]), pq);
     if (s) return s > 0;
-    /* symbolic perturbation: the five points in descending rank (= vertex id) */
-    int32_t ids[5] = {v[0], v[1], v[2], v[3], q};
+    /* symbolic perturbation: the five points in descending rank */
+    STAT(st_sym);
+    const int32_t *rk = dt->rank;
+    int32_t ids[5] = {rk[v[0]], rk[v[1]], rk[v[2]], rk[v[3]], rk[q]};
     int slot[5] = {0, 1, 2, 3, 4};
     for (int i = 1; i < 5; i++) /* insertion sort, descending id */
         for (int j = i; j > 0 && ids[slot[j]] > ids[slot[j - 1]]; j--) {
@@ -307,7 +329,7 @@ static int conflict_coplanar(const DT *dt, int32_t ia, int32_t ib, int32_t ic, i
              (i128)lift[2] * (du[0] * dv[1] - du[1] * dv[0]);
     int sw = (w > 0) - (w < 0);
     if (sw) return sw * so2 > 0;
-    int32_t ids[4] = {ia, ib, ic, iq};
+    int32_t ids[4] = {dt->rank[ia], dt->rank[ib], dt->rank[ic], dt->rank[iq]};
     int slot[4] = {0, 1, 2, 3};
     for (int s = 1; s < 4; s++)
         for (int t = s; t > 0 && ids[slot[t]] > ids[slot[t - 1]]; t--) {
@@ -330,7 +352,7 @@ static int conflict_coplanar(const DT *dt, int32_t ia, int32_t ib, int32_t ic, i
 
 /* Does q conflict with tet t (finite or ghost)? */
 static int conflict(const DT *dt, int32_t t, int32_t q) {
-    const int32_t *v = dt->tv + 4 * (int64_t)t;
+    const int32_t *v = TV(dt, t);
     const int32_t inf = dt->n;
     int k = v[0] == inf ? 0 : v[1] == inf ? 1 : v[2] == inf ? 2 : v[3] == inf ? 3 : -1;
     if (k < 0) return conflict_finite(dt, v, q);
@@ -345,7 +367,7 @@ static int conflict(const DT *dt, int32_t t, int32_t q) {
 }
 
 static inline int is_ghost(const DT *dt, int32_t t) {
-    const int32_t *v = dt->tv + 4 * (int64_t)t;
+    const int32_t *v = TV(dt, t);
     return v[0] == dt->n || v[1] == dt->n || v[2] == dt->n || v[3] == dt->n;
 }
 
@@ -356,7 +378,8 @@ static int locate(DT *dt, int32_t q, int32_t *found) {
     int came = -1;
     const double *pq = P(dt, q);
     for (int64_t steps = 0; steps < 4 * dt->count + 64; steps++) {
-        const int32_t *v = dt->tv + 4 * (int64_t)t;
+        const int32_t *v = TV(dt, t);
+        STAT(st_walk);
         int r = (int)(xorshift(&dt->rng) & 3);
         int moved = 0;
         for (int j = 0; j < 4; j++) {
@@ -365,7 +388,7 @@ static int locate(DT *dt, int32_t q, int32_t *found) {
             const double *p[4] = {P(dt, v[0]), P(dt, v[1]), P(dt, v[2]), P(dt, v[3])};
             p[f] = pq;
             if (orient3d(p[0], p[1], p[2], p[3]) < 0) {
-                int32_t code = dt->tn[4 * (int64_t)t + f];
+                int32_t code = TN(dt, t, f);
                 t = code >> 2;
                 came = code & 3;
                 moved = 1;
@@ -385,9 +408,17 @@ static int locate(DT *dt, int32_t q, int32_t *found) {
 }
 
 static inline void glue(DT *dt, int32_t t, int f, int32_t code) {
-    dt->tn[4 * (int64_t)t + f] = code;
-    dt->tn[code] = t * 4 + f;
+    TN(dt, t, f) = code;
+    TN(dt, code >> 2, code & 3) = t * 4 + f;
 }
+
+/* OTHER[f][g]: the two slots other than f and g (f != g) */
+static const int8_t OTHER[4][4][2] = {
+    {{-1, -1}, {2, 3}, {1, 3}, {1, 2}},
+    {{2, 3}, {-1, -1}, {0, 3}, {0, 2}},
+    {{1, 3}, {0, 3}, {-1, -1}, {0, 1}},
+    {{1, 2}, {0, 2}, {0, 1}, {-1, -1}},
+};
 
 static int insert(DT *dt, int32_t q) {
     int32_t seed;
@@ -398,40 +429,31 @@ static int insert(DT *dt, int32_t q) {
     int64_t ns = 0, nb = 0, top = 0;
     dt->mark[seed] = in_mark;
     dt->stack[ns++] = seed;
-    /* breadth-first over the conflicting tets; stack[0..ns) is the cavity, top the next one to expand */
+    /* breadth-first over the conflicting tets; stack[0..ns) is the cavity, top the next one to expand;
+     * bnd[2 i], bnd[2 i + 1]: cavity tet and face of the i-th boundary face */
     while (top < ns) {
         int32_t t = dt->stack[top++];
+        if (grow((void **)&dt->stack, &dt->stack_cap, ns + 4, sizeof(int32_t))) return ERR_MEMORY;
+        if (grow((void **)&dt->bnd, &dt->bnd_cap, 2 * (nb + 4), sizeof(int32_t))) return ERR_MEMORY;
         for (int f = 0; f < 4; f++) {
-            int32_t code = dt->tn[4 * (int64_t)t + f];
-            int32_t u = code >> 2;
+            int32_t u = TN(dt, t, f) >> 2;
             uint32_t m = dt->mark[u];
             if (m == in_mark) continue;
             if (m != out_mark) {
                 if (conflict(dt, u, q)) {
                     dt->mark[u] = in_mark;
-                    if (grow((void **)&dt->stack, &dt->stack_cap, ns + 1, sizeof(int32_t))) return ERR_MEMORY;
                     dt->stack[ns++] = u;
                     continue;
                 }
                 dt->mark[u] = out_mark;
             }
-            if (grow((void **)&dt->bnd, &dt->bnd_cap, 6 * (nb + 1), sizeof(int32_t))) return ERR_MEMORY;
-            int32_t *r = dt->bnd + 6 * nb++;
-            memcpy(r, dt->tv + 4 * (int64_t)t, 4 * sizeof(int32_t));
-            r[f] = q;
-            r[4] = f;
-            r[5] = code;
+            dt->bnd[2 * nb] = t;
+            dt->bnd[2 * nb + 1] = f;
+            nb++;
         }
     }
-    /* free the cavity */
-    if (grow((void **)&dt->free_list, &dt->free_cap, dt->nfree + ns, sizeof(int32_t))) return ERR_MEMORY;
-    for (int64_t i = 0; i < ns; i++) {
-        int32_t t = dt->stack[i];
-        dt->tv[4 * (int64_t)t] = -1;
-        dt->free_list[dt->nfree++] = t;
-    }
     /* edge table for linking the new tets to each other */
-    int64_t need = 4;
+    int64_t need = 16;
     while (need < 4 * nb) need *= 2;
     if (need > dt->hcap) {
         free(dt->hkeys);
@@ -446,26 +468,25 @@ static int insert(DT *dt, int32_t q) {
     const uint64_t hmask = (uint64_t)dt->hcap - 1;
     const uint32_t hs = dt->stamp; /* never 0: stamps start at 1 */
     const int32_t inf = dt->n;
+    /* new tets: the cavity tet of each boundary face with the vertex opposite it replaced by q; the cavity tets
+     * stay intact until all are made (the free list holds only earlier insertions' tets) */
     for (int64_t i = 0; i < nb; i++) {
-        const int32_t *r = dt->bnd + 6 * i;
+        int32_t ct = dt->bnd[2 * i], f = dt->bnd[2 * i + 1];
         int32_t t;
         if ((err = new_tet(dt, &t))) return err;
-        int f = r[4];
-        memcpy(dt->tv + 4 * (int64_t)t, r, 4 * sizeof(int32_t));
+        int32_t *r = TV(dt, t);
+        memcpy(r, TV(dt, ct), 4 * sizeof(int32_t));
+        r[f] = q;
         dt->mark[t] = 0;
-        glue(dt, t, f, r[5]);
-        if (r[0] != inf && r[1] != inf && r[2] != inf && r[3] != inf) {
-            if (orient3d(P(dt, r[0]), P(dt, r[1]), P(dt, r[2]), P(dt, r[3])) <= 0) return ERR_FLAT;
-            dt->last = t;
-        }
+        glue(dt, t, f, TN(dt, ct, f));
+        if (r[0] != inf && r[1] != inf && r[2] != inf && r[3] != inf) dt->last = t;
         for (int g = 0; g < 4; g++) {
             if (g == f) continue;
             /* face g holds q and the two vertices at the slots other than f and g */
-            int32_t e[2], m = 0;
-            for (int s = 0; s < 4; s++)
-                if (s != f && s != g) e[m++] = r[s];
-            uint64_t key = e[0] < e[1] ? ((uint64_t)e[0] << 32) | (uint32_t)e[1] : ((uint64_t)e[1] << 32) | (uint32_t)e[0];
-            uint64_t h = (key * 0x9E3779B97F4A7C15ull) >> 20;
+            uint32_t e0 = (uint32_t)r[OTHER[f][g][0]], e1 = (uint32_t)r[OTHER[f][g][1]];
+            uint32_t lo = e0 < e1 ? e0 : e1, hi = e0 ^ e1 ^ lo;
+            uint64_t key = ((uint64_t)lo << 32) | hi;
+            uint64_t h = (key * 0x9E3779B97F4A7C15ull) >> 32;
             for (;; h++) {
                 uint64_t s = h & hmask;
                 if (dt->hstamp[s] != hs) {
@@ -480,6 +501,17 @@ static int insert(DT *dt, int32_t q) {
                 }
             }
         }
+    }
+    /* free the cavity */
+#ifdef DT_STATS
+    st_cav += ns;
+    st_bnd += nb;
+#endif
+    if (grow((void **)&dt->free_list, &dt->free_cap, dt->nfree + ns, sizeof(int32_t))) return ERR_MEMORY;
+    for (int64_t i = 0; i < ns; i++) {
+        int32_t t = dt->stack[i];
+        TV(dt, t)[0] = -1;
+        dt->free_list[dt->nfree++] = t;
     }
     return OK;
 }
@@ -642,8 +674,8 @@ typedef struct {
 
 static void dt_free(DT *dt) {
     free(dt->x);
-    free(dt->tv);
-    free(dt->tn);
+    free(dt->tt);
+    free(dt->rank);
     free(dt->mark);
     free(dt->free_list);
     free(dt->stack);
@@ -661,6 +693,9 @@ static int run(const int64_t *cells, int64_t n_in, Result *res) {
     uint32_t *perm = NULL, *tmp = NULL, *key = NULL, *orig = NULL;
     uint64_t *order = NULL, *otmp = NULL;
     if (n_in < 4) return OK;
+#ifdef DT_STATS
+    double t0 = now();
+#endif
     perm = malloc((size_t)n_in * sizeof(uint32_t));
     tmp = malloc((size_t)n_in * sizeof(uint32_t));
     key = malloc((size_t)n_in * sizeof(uint32_t));
@@ -722,21 +757,42 @@ static int run(const int64_t *cells, int64_t n_in, Result *res) {
     radix_sort(order, otmp, m, 60);
     free(otmp);
     otmp = NULL;
-    for (int64_t i = 0; i < m; i++) order[i] &= (1u << 26) - 1;
+    /* renumber the vertices in insertion order (nearby vertices near in memory); keep their ranks */
+    {
+        double *xn = malloc((size_t)(m + 1) * 3 * sizeof(double));
+        dt.rank = malloc((size_t)m * sizeof(int32_t));
+        uint32_t *ov = malloc((size_t)m * sizeof(uint32_t));
+        if (!xn || !dt.rank || !ov) {
+            free(xn);
+            free(ov);
+            goto nomem;
+        }
+        for (int64_t i = 0; i < m; i++) {
+            int64_t r = (int64_t)(order[i] & ((1u << 26) - 1));
+            memcpy(xn + 3 * i, dt.x + 3 * r, 3 * sizeof(double));
+            dt.rank[i] = (int32_t)r;
+            ov[i] = orig[r];
+        }
+        xn[3 * m] = xn[3 * m + 1] = xn[3 * m + 2] = 0.0;
+        free(dt.x);
+        dt.x = xn;
+        free(orig);
+        orig = ov;
+    }
     /* first tet: 4 affinely independent points, in insertion order */
     int64_t pick[4] = {0, 1, -1, -1};
     {
-        const double *a = dt.x + 3 * order[0], *b = dt.x + 3 * order[1];
+        const double *a = dt.x, *b = dt.x + 3;
         int64_t ux = (int64_t)(b[0] - a[0]), uy = (int64_t)(b[1] - a[1]), uz = (int64_t)(b[2] - a[2]);
         for (int64_t i = 2; i < m && pick[2] < 0; i++) {
-            const double *c = dt.x + 3 * order[i];
+            const double *c = dt.x + 3 * i;
             int64_t vx = (int64_t)(c[0] - a[0]), vy = (int64_t)(c[1] - a[1]), vz = (int64_t)(c[2] - a[2]);
             if (uy * vz - uz * vy || uz * vx - ux * vz || ux * vy - uy * vx) pick[2] = i;
         }
         if (pick[2] < 0) goto done; /* collinear */
-        const double *c = dt.x + 3 * order[pick[2]];
+        const double *c = dt.x + 3 * pick[2];
         for (int64_t i = pick[2] + 1; i < m && pick[3] < 0; i++)
-            if (orient3d(a, b, c, dt.x + 3 * order[i])) pick[3] = i;
+            if (orient3d(a, b, c, dt.x + 3 * i)) pick[3] = i;
         if (pick[3] < 0) goto done; /* coplanar */
     }
     dt.max_tets = TETS_PER_POINT * m + TETS_EXTRA;
@@ -745,8 +801,17 @@ static int run(const int64_t *cells, int64_t n_in, Result *res) {
     dt.stamp = 1;
     if (grow((void **)&dt.stack, &dt.stack_cap, 256, sizeof(int32_t))) goto nomem;
     {
+        /* ~6.5 tets per point plus the hull's ghosts: reserve once instead of growing by copies */
+        int64_t c = 8 * m + 64;
+        if (c > dt.max_tets) c = dt.max_tets;
+        dt.tt = malloc((size_t)c * 8 * sizeof(int32_t));
+        dt.mark = malloc((size_t)c * sizeof(uint32_t));
+        if (!dt.tt || !dt.mark) goto nomem;
+        dt.cap = c;
+    }
+    {
         int32_t v[4];
-        for (int i = 0; i < 4; i++) v[i] = (int32_t)order[pick[i]];
+        for (int i = 0; i < 4; i++) v[i] = (int32_t)pick[i];
         if (orient3d(P(&dt, v[0]), P(&dt, v[1]), P(&dt, v[2]), P(&dt, v[3])) < 0) {
             int32_t t = v[0];
             v[0] = v[1];
@@ -755,9 +820,9 @@ static int run(const int64_t *cells, int64_t n_in, Result *res) {
         int32_t ids[5];
         for (int i = 0; i < 5; i++)
             if ((err = new_tet(&dt, &ids[i]))) goto fail;
-        memcpy(dt.tv, v, sizeof v);
+        memcpy(TV(&dt, 0), v, sizeof v);
         for (int i = 0; i < 4; i++) {
-            int32_t *g = dt.tv + 4 * (int64_t)ids[i + 1];
+            int32_t *g = TV(&dt, ids[i + 1]);
             memcpy(g, v, sizeof v);
             g[i] = dt.n;
             int s0 = i == 0 ? 1 : 0, s1 = i <= 1 ? 2 : 1; /* the two lowest slots other than i: swap them */
@@ -773,8 +838,8 @@ static int run(const int64_t *cells, int64_t n_in, Result *res) {
                     for (int g = 0; g < 4; g++) {
                         int32_t a[3], b[3], na = 0, nb2 = 0;
                         for (int s = 0; s < 4; s++) {
-                            if (s != f) a[na++] = dt.tv[4 * t + s];
-                            if (s != g) b[nb2++] = dt.tv[4 * u + s];
+                            if (s != f) a[na++] = TV(&dt, t)[s];
+                            if (s != g) b[nb2++] = TV(&dt, u)[s];
                         }
                         int same = 1;
                         for (int s = 0; s < 3 && same; s++)
@@ -783,14 +848,23 @@ static int run(const int64_t *cells, int64_t n_in, Result *res) {
                     }
         dt.last = 0;
     }
+#ifdef DT_STATS
+    double t1 = now();
+#endif
     for (int64_t i = 2; i < m; i++) {
         if (i == pick[2] || i == pick[3]) continue;
-        if ((err = insert(&dt, (int32_t)order[i]))) goto fail;
+        if ((err = insert(&dt, (int32_t)i))) goto fail;
     }
     /* 5: output */
+#ifdef DT_STATS
+    double t2 = now();
+    fprintf(stderr, "n %lld orient %lld exact %lld insphere %lld exact %lld sym %lld walk %lld cavity %lld boundary %lld\n",
+            (long long)m, (long long)st_orient, (long long)st_orient_exact, (long long)st_insph,
+            (long long)st_insph_exact, (long long)st_sym, (long long)st_walk, (long long)st_cav, (long long)st_bnd);
+#endif
     int64_t nt = 0, nh = 0;
     for (int64_t t = 0; t < dt.count; t++) {
-        if (dt.tv[4 * t] < 0) continue;
+        if (TV(&dt, t)[0] < 0) continue;
         if (is_ghost(&dt, (int32_t)t))
             nh++;
         else
@@ -800,10 +874,15 @@ static int run(const int64_t *cells, int64_t n_in, Result *res) {
     res->hull = malloc((size_t)(nh ? nh : 1) * sizeof(Row));
     if (!res->tets || !res->hull) goto nomem;
     for (int64_t t = 0; t < dt.count; t++) {
-        const int32_t *v = dt.tv + 4 * t;
+        const int32_t *v = TV(&dt, t);
         if (v[0] < 0) continue;
         int k = v[0] == dt.n ? 0 : v[1] == dt.n ? 1 : v[2] == dt.n ? 2 : v[3] == dt.n ? 3 : -1;
         if (k < 0) {
+            /* rule 5: every tet positively oriented (Bowyer-Watson with exact predicates guarantees it; checked) */
+            if (orient3d(P(&dt, v[0]), P(&dt, v[1]), P(&dt, v[2]), P(&dt, v[3])) <= 0) {
+                err = ERR_FLAT;
+                goto fail;
+            }
             Row *r = res->tets + res->nt++;
             for (int i = 0; i < 4; i++) r->v[i] = orig[v[i]];
             canonical_tet(r->v);
@@ -817,6 +896,9 @@ static int run(const int64_t *cells, int64_t n_in, Result *res) {
         }
     }
     if (sort_rows(res->tets, res->nt, n_in) || sort_rows(res->hull, res->nh, n_in)) goto nomem;
+#ifdef DT_STATS
+    fprintf(stderr, "prep %.1f ms insert %.1f ms output %.1f ms\n", 1e3 * (t1 - t0), 1e3 * (t2 - t1), 1e3 * (now() - t2));
+#endif
     goto done;
 nomem:
     err = ERR_MEMORY;

@@ -1,25 +1,90 @@
-"""Delaunay tetrahedralization of a bare point set: TetGen by default, scipy's Qhull as permissive fallback.
+"""Delaunay tetrahedralization of a bare point set: our own exact one by default, TetGen and scipy's Qhull as
+alternatives (files that recorded them).
 
-Backends, measured on a 2-core CPU for 64K float16-rounded points in a thin shell (one run, timing noise
-+-30 %):
+Backends, measured on a 2-core CPU (timing noise +-30 %; `benchmarks/delaunay_speed.py` prints the current
+numbers; 64K points uniform in a cube, 16-18K points of the 40 KB bench files):
 
-=========================  ===========  ==============  ==========================================
-backend                    64K points   license         notes
-=========================  ===========  ==============  ==========================================
-TetGen 1.6 (``tetgenpy``)  0.29-0.36 s  AGPL-3.0        switches ``Qz``; exact predicates
-scipy Qhull                1.9-2.3 s    BSD (Qhull)     ``Qbb Qc Qz Q12 Qt`` on perturbed points, below
-=========================  ===========  ==============  ==========================================
+=========================  ===========  ===========  ==============  ==========================================
+backend                    64K points   40 KB files  license         notes
+=========================  ===========  ===========  ==============  ==========================================
+``exact`` (ours, C)        see below    see below    this project's  exact integer predicates, unique result
+TetGen 1.6 (``tetgenpy``)  0.25-0.36 s  50-75 ms     AGPL-3.0        switches ``Qz``; optional extra ``tetgen``
+scipy Qhull                1.9-2.3 s                 BSD (Qhull)     ``Qbb Qc Qz Q12 Qt`` on perturbed points
+=========================  ===========  ===========  ==============  ==========================================
 
-License consequence: TetGen is AGPL-3.0, so tetweave as distributed (depending on ``tetgenpy``) is
-AGPL-3.0-or-later. Without ``tetgenpy`` installed everything still works through Qhull (``backend="auto"``
-falls back to it), only about 6x slower.
+``backend="auto"`` is ``"exact"``: always available (a required C extension, geometry/_delaunay_native.c, no
+third-party code), specified below to the bit so that an independent decoder computes the same tets. TetGen is
+imported lazily and only for the ``"tetgen"`` backend (``pip install 'tetweave[tetgen]'``); without it that
+backend raises ImportError with the install hint.
 
-Degenerate (cospherical) point sets have several Delaunay tetrahedralizations and the two backends may pick
-different ones. Measured on float16-rounded point sets: uniform in a cube, in sphere and torus shells (27 sets
-of 2K-64K points): identical tets every time; points crowded on the float16 lattice (a cube 0.04 wide around
-0.5, about 80 float16 values per axis; 27 sets) and regular lattices: different tets every time. Decoding must
-reproduce exactly the mesh the encoder reported, so the `.tw` container records which backend triangulated the
-points (flags bit 0) and the decoder uses the same one.
+The "exact" backend: definition
+-------------------------------
+Input: N integer points p_i = (x_i, y_i, z_i), i = 0..N-1, with 0 <= x_i, y_i, z_i < 2^MAX_BITS, MAX_BITS = 23
+(`tetrahedralize_cells`; `tetrahedralize(points, "exact")` first snaps float points to that lattice, see
+`snap_to_lattice`). Coordinates outside the range and N > 2^26 raise ValueError.
+
+1. Duplicates. Of points with equal coordinates only the one with the lowest index i is a vertex; the others
+   appear in no tet and no hull face.
+2. Ranks and perturbation. The M distinct points are ranked r = 0..M-1 in ascending lexicographic order of
+   (x, y, z). Each point is lifted to h(p) = x^2 + y^2 + z^2 + delta_r, where the delta_r are positive
+   infinitesimals with delta_{M-1} >> delta_{M-2} >> ... >> delta_0 > 0 (e.g. delta_r = eps^(M - r), eps -> 0+):
+   the point of larger rank is raised more, and its term dominates. The tetrahedralization is the regular
+   triangulation of the points with these lifts (the projection of the lower convex hull of the lifted points):
+   the Delaunay tetrahedralization where the points are in general position, unique for every input with at
+   least 4 affinely independent points. Every distinct point is a vertex (a perturbation this small hides none).
+3. Predicates, exact.
+   orient3d(a, b, c, d) = sign det[b - a, c - a, d - a] (rows), no perturbation; (a, b, c, d) is positively
+   oriented when orient3d > 0. Conflict of a point e with a positively oriented tet (a, b, c, d) (e inside its
+   perturbed circumsphere): with O = det[b - a, c - a, d - a] and the lifts h,
+
+       Phi = O h(e) - o_a h(a) - o_b h(b) - o_c h(c) - o_d h(d),
+       o_a = det3(e, b, c, d), o_b = det3(a, e, c, d), o_c = det3(a, b, e, d), o_d = det3(a, b, c, e),
+
+   det3 being the determinant orient3d takes the sign of (o_v / O are e's barycentric coordinates, so Phi / O is
+   h(e) minus the lifted plane through a, b, c, d at e). e conflicts iff Phi < 0. Phi = Phi_0 + O delta(e)
+   - o_a delta(a) - o_b delta(b) - o_c delta(c) - o_d delta(d), Phi_0 the same with |p|^2 for h. If Phi_0 != 0
+   its sign decides (Phi_0 < 0: e strictly inside the circumsphere). Else go through the five points in
+   descending rank: if the point is e, e does not conflict (its coefficient O > 0); if it is a vertex v, let
+   o = orient3d of the tet with v replaced by e; if o != 0, e conflicts iff o > 0; if o = 0, go on (e itself is
+   always reached). Translated to e (A = a - e, ...; rows): Phi_0 = -W with
+   W = |A|^2 det[B,C,D] - |B|^2 det[A,C,D] + |C|^2 det[A,B,D] - |D|^2 det[A,B,C], so e is strictly inside iff
+   W > 0.
+4. Convex hull. An infinite vertex closes the hull: a hull triangle (a, b, c), oriented outward, is the finite
+   face of a "ghost tet". A point q conflicts with it iff orient3d(a, b, c, q) > 0 (q strictly outside its
+   plane), or orient3d(a, b, c, q) = 0 and q is inside the perturbed circumcircle of (a, b, c): in a coordinate
+   plane where the projection (a', b', c') of the triangle is not degenerate (the implementation drops the axis
+   of the largest |component| of (b - a) x (c - a), the lowest on ties; the result does not depend on the
+   choice), with O2 = det[b' - a', c' - a'] and the same 3-D lifts h,
+
+       Phi2 = O2 h(q) - o'_a h(a) - o'_b h(b) - o'_c h(c),
+       o'_a = det2(q', b', c'), o'_b = det2(a', q', c'), o'_c = det2(a', b', q'),
+
+   q conflicts iff sign(O2) Phi2 < 0 (h(q) below the lifted plane through a, b, c, at q). If the unperturbed part
+   is 0, go through a, b, c, q in descending rank: q -> no conflict; a vertex v whose orient2d with v replaced by q
+   is non-zero -> conflict iff that sign equals sign(O2). This is rule 3 restricted to the plane of a hull face,
+   so the hull triangulation is the regular triangulation's (the 2-D regular triangulation of the points on each
+   planar face of the hull).
+5. Output. tets (T, 4) int64: every tet positively oriented (orient3d > 0 exactly; never flat), indices into the
+   caller's array. Canonical order: each tet is permuted evenly (orientation kept) so that its smallest index
+   comes first and the smallest of the other three second; tets sorted lexicographically. hull_faces (H, 3)
+   int64: the hull triangles, oriented outward ((b - a) x (c - a) points away from the points), rotated
+   cyclically so that the smallest index comes first, sorted lexicographically. Fewer than 4 distinct points, or
+   all distinct points coplanar: (0, 4) and (0, 3), no error.
+
+Exactness: coordinates in [0, 2^23 - 1] give differences < 2^23, 2x2 minors < 2^47 (int64, exact in binary64),
+orient3d determinants < 3 * 2^23 * 2^47 < 2^72, lifts |d|^2 < 3 * 2^46 < 2^48, W < 4 * 3 * 2^46 * 3 * 2^69 < 2^121
+and the 2-D conflict value < 3 * 3 * 2^46 * 2^47 < 2^97: 128-bit integers (and binary64 behind a forward error
+bound) evaluate every predicate exactly. Algorithm (speed only: any correct implementation gives the same
+arrays): Bowyer-Watson in BRIO / Hilbert order with a visibility walk, filtered predicates; see the C file.
+
+Other backends
+--------------
+License consequence of TetGen: AGPL-3.0; it is an optional extra, needed only to decode files whose header
+records TetGen. Degenerate (cospherical) point sets have several Delaunay tetrahedralizations and TetGen and
+Qhull may pick different ones (measured on float16-rounded point sets: uniform in a cube, in sphere and torus
+shells, 27 sets of 2K-64K points: identical tets every time; points crowded on the float16 lattice and regular
+lattices: different tets every time), which is why the container records the backend (flags bit 0) and the
+decoder uses the same one.
 
 Guarantees of `delaunay` / `tetrahedralize`:
 
@@ -29,10 +94,11 @@ Guarantees of `delaunay` / `tetrahedralize`:
   by at most two tets, seen in opposite orientations, and the unpaired triangles are the convex hull's;
 * tets are positively oriented, ``det[p1 - p0, p2 - p0, p3 - p0] > 0``, decided with an exact predicate where
   float64 is not certain (for Qhull: the sign on the perturbed points, below; a tet whose corners are coplanar
-  in true coordinates keeps that orientation, consistent with its neighbours);
-* deterministic (both libraries are deterministic for the same input and options);
-* fewer than 4 points, or points that span no volume (all (nearly) coplanar or collinear), give no tets
-  (shape (0, 4)).
+  in true coordinates keeps that orientation, consistent with its neighbours; for "exact": on the lattice
+  points, see `snap_to_lattice`);
+* deterministic (all three are deterministic for the same input and options);
+* fewer than 4 points, or points that span no volume (all (nearly) coplanar or collinear for TetGen and Qhull,
+  exactly coplanar for "exact"), give no tets (shape (0, 4)).
 
 Qhull tie-break. TetGen decides every predicate exactly with a symbolic perturbation, so cospherical and
 coplanar sets (lattice points: every cube of 8 cells is cospherical) come out as a proper tetrahedralization.
@@ -60,7 +126,13 @@ import numpy as np
 
 from tetweave_codec.errors import TopologyError
 
-BACKENDS = ("tetgen", "qhull")
+BACKENDS = ("exact", "tetgen", "qhull")
+
+# The "exact" backend's lattice (module docstring): integer coordinates in [0, 2^MAX_BITS), at most MAX_POINTS
+# points (the C extension checks both again).
+MAX_BITS = 23
+MAX_POINTS = 2**26
+TETGEN_INSTALL_HINT = "pip install 'tetweave[tetgen]' (TetGen is AGPL-3.0)"
 
 # TetGen switches: Q quiet, z zero-based indices. No 'F': the convex hull faces come out for free and the
 # decoder needs them to close surfaces that reach the hull.
@@ -95,7 +167,7 @@ class Tetrahedralization(NamedTuple):
 
     tets: (T, 4) int64, positively oriented, indices into the caller's points.
     hull_faces: (H, 3) int64, the convex hull's triangles (faces of exactly one tet), oriented outward.
-    backend: "tetgen" or "qhull", the library that produced `tets`.
+    backend: "exact", "tetgen" or "qhull", the code that produced `tets`.
     """
 
     tets: np.ndarray
@@ -103,23 +175,27 @@ class Tetrahedralization(NamedTuple):
     backend: str
 
 
-def available_backends() -> tuple[str, ...]:
-    """Backends usable in this environment, in order of preference."""
+def _has_tetgen() -> bool:
     try:
         import tetgenpy  # noqa: F401
     except ImportError:
-        return ("qhull",)
-    return BACKENDS
+        return False
+    return True
+
+
+def available_backends() -> tuple[str, ...]:
+    """Backends usable in this environment, in order of preference ("exact" always first)."""
+    return BACKENDS if _has_tetgen() else tuple(b for b in BACKENDS if b != "tetgen")
 
 
 def resolve_backend(backend: str = "auto") -> str:
-    """Map "auto" to the fastest available backend; validate explicit names (ValueError / ImportError)."""
+    """Map "auto" to "exact"; validate explicit names (ValueError; ImportError for "tetgen" without tetgenpy)."""
     if backend == "auto":
-        return available_backends()[0]
+        return BACKENDS[0]
     if backend not in BACKENDS:
         raise ValueError(f"unknown Delaunay backend {backend!r}; choose one of auto, {', '.join(BACKENDS)}")
-    if backend not in available_backends():
-        raise ImportError(f"Delaunay backend {backend!r} needs the tetgenpy package, which is not installed")
+    if backend == "tetgen" and not _has_tetgen():
+        raise ImportError(f"the Delaunay backend 'tetgen' needs the tetgenpy package: {TETGEN_INSTALL_HINT}")
     return backend
 
 
@@ -128,7 +204,7 @@ def delaunay(points: np.ndarray, backend: str = "auto") -> np.ndarray:
 
     Args:
         points: (N, 3) finite coordinates (any float dtype; computed in float64).
-        backend: "auto" (TetGen if installed, else Qhull), "tetgen" or "qhull".
+        backend: "auto" (= "exact"), "exact", "tetgen" or "qhull".
     Returns:
         tets (T, 4) int64, positively oriented, indices into `points`.
     """
@@ -136,13 +212,18 @@ def delaunay(points: np.ndarray, backend: str = "auto") -> np.ndarray:
 
 
 def tetrahedralize(points: np.ndarray, backend: str = "auto") -> Tetrahedralization:
-    """Delaunay tetrahedralization with the convex hull faces; see `Tetrahedralization`."""
+    """Delaunay tetrahedralization with the convex hull faces; see `Tetrahedralization`.
+
+    "exact" triangulates `snap_to_lattice(points)` (`tetrahedralize_cells`); the others the float64 points.
+    """
     backend = resolve_backend(backend)
     pts = np.ascontiguousarray(points, dtype=np.float64)
     if pts.ndim != 2 or pts.shape[1] != 3:
         raise ValueError(f"points must have shape (N, 3), got {pts.shape}")
     if not np.isfinite(pts).all():
         raise ValueError("points must be finite")
+    if backend == "exact":
+        return tetrahedralize_cells(snap_to_lattice(pts))
     if _spans_no_volume(pts):
         return Tetrahedralization(np.zeros((0, 4), np.int64), np.zeros((0, 3), np.int64), backend)
     if backend == "tetgen":
@@ -150,6 +231,57 @@ def tetrahedralize(points: np.ndarray, backend: str = "auto") -> Tetrahedralizat
     else:
         tets, hull = _qhull(pts)
     return Tetrahedralization(tets, hull, backend)
+
+
+def snap_to_lattice(points: np.ndarray) -> np.ndarray:
+    """Lattice cells of float points for the "exact" backend: (N, 3) int64 in [0, 2^MAX_BITS).
+
+    ``K = floor((x + B) / (2 B) * 2^MAX_BITS + 1/2)`` clamped to ``[0, 2^MAX_BITS - 1]``, B = quantize.GRID_BOUND:
+    the nearest of 2^23 lattice values over [-B, B] (in float64, one rounding per operation). Rounding to the
+    nearest rather than down: a v2 file's cell centre at b bits, ``((2k + 1 - 2^b) B) / 2^b``, sits exactly on the
+    lattice value ``k * 2^(23 - b) + 2^(22 - b)``, and float64 error (~1e-9 here) could put it below that integer;
+    so every position grid of 6..16 bits maps to the lattice exactly (tests/test_delaunay_exact.py), its tets are
+    those of `tetrahedralize_cells(cells)`, and the map is monotone (lexicographic ranks are kept).
+    """
+    from tetweave_codec.formats.quantize import GRID_BOUND
+
+    pts = np.asarray(points, dtype=np.float64)
+    if pts.ndim != 2 or pts.shape[1] != 3:
+        raise ValueError(f"points must have shape (N, 3), got {pts.shape}")
+    if not np.isfinite(pts).all():
+        raise ValueError("points must be finite")
+    t = (pts + GRID_BOUND) / (2.0 * GRID_BOUND) * float(1 << MAX_BITS)
+    return np.clip(np.floor(t + 0.5), 0, (1 << MAX_BITS) - 1).astype(np.int64)
+
+
+def tetrahedralize_cells(cells: np.ndarray) -> Tetrahedralization:
+    """The "exact" backend on integer points: the tetrahedralization the module docstring defines.
+
+    Args:
+        cells: (N, 3) integers in [0, 2^MAX_BITS), N <= MAX_POINTS (else ValueError).
+    Returns:
+        Tetrahedralization(tets (T, 4) int64, hull_faces (H, 3) int64, "exact"), in the canonical order. A
+        TopologyError if a tet came out flat (an internal inconsistency; never expected).
+    """
+    from tetweave_codec.geometry import _delaunay_native
+
+    c = np.asarray(cells)
+    if c.ndim != 2 or c.shape[1] != 3:
+        raise ValueError(f"cells must have shape (N, 3), got {c.shape}")
+    if c.size and not np.issubdtype(c.dtype, np.integer):
+        raise ValueError(f"cells must be integers, got {c.dtype}")
+    if len(c) > MAX_POINTS:
+        raise ValueError(f"at most {MAX_POINTS} points can be tetrahedralized, got {len(c)}")
+    if c.size and (c.min() < 0 or c.max() >= (1 << MAX_BITS)):
+        raise ValueError(f"cell coordinates must lie in [0, 2^{MAX_BITS}), got {c.min()}..{c.max()}")
+    c = np.ascontiguousarray(c, dtype=np.int64)
+    try:
+        tets, hull = _delaunay_native.tetrahedralize(c)
+    except RuntimeError as exc:  # "flat tet ..." or "walk ...": the predicates disagreed with the construction
+        raise TopologyError(f"exact Delaunay of {len(c)} points failed: {exc}") from exc
+    return Tetrahedralization(
+        np.frombuffer(tets, dtype=np.int64).reshape(-1, 4), np.frombuffer(hull, dtype=np.int64).reshape(-1, 3), "exact"
+    )
 
 
 def _spans_no_volume(pts: np.ndarray) -> bool:
