@@ -138,14 +138,29 @@ static int orient_exact(const double *a, const double *b, const double *c, const
     return (det > 0) - (det < 0);
 }
 
+/* Static filters from the largest coordinate difference S of the input (after scaling): every orient3d
+ * permanent is at most 3 * S * 2 S^2 = 6 S^3, every insphere permanent at most 4 * 3 S^2 * 3 * S * 2 S^2 = 72 S^5.
+ * A computed value above bound * that maximum has a certain sign; below 2^53 every operation is exact (the
+ * bound is then -1: any computed value, 0 included, is the exact one). */
+typedef struct {
+    double orient, insphere;
+} Filter;
+
+static void filter_init(Filter *fl, double span) {
+    double o = 6.0 * span * span * span, i = 72.0 * span * span * span * span * span;
+    fl->orient = o < EXACT_DOUBLE ? -1.0 : ORIENT_BOUND * o;
+    fl->insphere = i < EXACT_DOUBLE ? -1.0 : INSPHERE_BOUND * i;
+}
+
 /* sign det[b - a, c - a, d - a] */
-static inline int orient3d(const double *a, const double *b, const double *c, const double *d) {
+static inline int orient3d(const Filter *fl, const double *a, const double *b, const double *c, const double *d) {
     STAT(st_orient);
     double bx = b[0] - a[0], by = b[1] - a[1], bz = b[2] - a[2];
     double cx = c[0] - a[0], cy = c[1] - a[1], cz = c[2] - a[2];
     double dx = d[0] - a[0], dy = d[1] - a[1], dz = d[2] - a[2];
     double t1 = bx * (cy * dz - cz * dy), t2 = by * (cz * dx - cx * dz), t3 = bz * (cx * dy - cy * dx);
     double det = t1 + t2 + t3;
+    if (fabs(det) > fl->orient) return (det > 0) - (det < 0);
     double perm = fabs(t1) + fabs(t2) + fabs(t3);
     double bound = ORIENT_BOUND * perm;
     if (det > bound) return 1;
@@ -174,7 +189,8 @@ static int insphere_exact(const double *a, const double *b, const double *c, con
 
 /* sign of W (module docstring, rule 3): > 0 iff e is strictly inside the sphere through a, b, c, d (for a
  * positively oriented tet) */
-static inline int insphere_w(const double *a, const double *b, const double *c, const double *d, const double *e) {
+static inline int insphere_w(const Filter *fl, const double *a, const double *b, const double *c, const double *d,
+                             const double *e) {
     STAT(st_insph);
     double ax = a[0] - e[0], ay = a[1] - e[1], az = a[2] - e[2];
     double bx = b[0] - e[0], by = b[1] - e[1], bz = b[2] - e[2];
@@ -193,6 +209,7 @@ static inline int insphere_w(const double *a, const double *b, const double *c, 
     double la = ax * ax + ay * ay + az * az, lb = bx * bx + by * by + bz * bz;
     double lc = cx * cx + cy * cy + cz * cz, ld = dx * dx + dy * dy + dz * dz;
     double w = la * bcd - lb * acd + lc * abd - ld * abc;
+    if (fabs(w) > fl->insphere) return (w > 0) - (w < 0);
     double perm = la * pbcd + lb * pacd + lc * pabd + ld * pabc;
     double bound = INSPHERE_BOUND * perm;
     if (w > bound) return 1;
@@ -205,12 +222,17 @@ static inline int insphere_w(const double *a, const double *b, const double *c, 
 /* the triangulation */
 
 typedef struct {
+    uint64_t key;
+    int32_t val;
+    uint32_t stamp;
+} HashSlot;
+
+typedef struct {
     int32_t n;      /* distinct points; vertex n is the infinite vertex */
     double *x;      /* 3 n coordinates, translated and scaled */
     int32_t *rank;  /* lexicographic rank of each vertex (vertices are numbered in insertion order) */
     int32_t *tt;    /* 8 per tet: its 4 vertices (TV; the first -1: a deleted tet), then its 4 neighbours (TN:
                        u * 4 + g, face g of tet u), one cache line per two tets */
-    uint32_t *mark; /* per tet: 2 * stamp (in the cavity) or 2 * stamp + 1 (tested, not in conflict) */
     int64_t cap, count, max_tets;
     int32_t *free_list;
     int64_t nfree, free_cap;
@@ -219,13 +241,13 @@ typedef struct {
     int64_t stack_cap;
     int32_t *bnd; /* boundary records: v[4], face, outside neighbour code: 6 ints each */
     int64_t bnd_cap;
-    uint64_t *hkeys;
-    int32_t *hvals;
-    uint32_t *hstamp;
+    HashSlot *hash;
     int64_t hcap;
     uint32_t stamp;
     uint64_t rng;
     int32_t last; /* a finite tet created by the last insertion */
+    int32_t dummy;
+    Filter fl;
 } DT;
 
 #define TV(dt, t) ((dt)->tt + 8 * (int64_t)(t))
@@ -254,9 +276,6 @@ static int new_tet(DT *dt, int32_t *out) {
         int32_t *tt = realloc(dt->tt, (size_t)c * 8 * sizeof(int32_t));
         if (!tt) return ERR_MEMORY;
         dt->tt = tt;
-        uint32_t *mk = realloc(dt->mark, (size_t)c * sizeof(uint32_t));
-        if (!mk) return ERR_MEMORY;
-        dt->mark = mk;
         dt->cap = c;
     }
     *out = (int32_t)dt->count++;
@@ -277,7 +296,7 @@ static inline const double *P(const DT *dt, int32_t v) { return dt->x + 3 * (int
 /* Does q conflict with the finite, positively oriented tet t? (rule 3) */
 static int conflict_finite(const DT *dt, const int32_t *v, int32_t q) {
     const double *pq = P(dt, q);
-    int s = insphere_w(P(dt, v[0]), P(dt, v[1]), P(dt, v[2]), P(dt, v[3]), pq);
+    int s = insphere_w(&dt->fl, P(dt, v[0]), P(dt, v[1]), P(dt, v[2]), P(dt, v[3]), pq);
     if (s) return s > 0;
     /* symbolic perturbation: the five points in descending rank */
     STAT(st_sym);
@@ -295,7 +314,7 @@ static int conflict_finite(const DT *dt, const int32_t *v, int32_t q) {
         if (k == 4) return 0;
         const double *p[4] = {P(dt, v[0]), P(dt, v[1]), P(dt, v[2]), P(dt, v[3])};
         p[k] = pq;
-        int o = orient3d(p[0], p[1], p[2], p[3]);
+        int o = orient3d(&dt->fl, p[0], p[1], p[2], p[3]);
         if (o) return o > 0;
     }
     return 0; /* not reached */
@@ -358,7 +377,7 @@ static int conflict(const DT *dt, int32_t t, int32_t q) {
     if (k < 0) return conflict_finite(dt, v, q);
     const double *p[4];
     for (int i = 0; i < 4; i++) p[i] = i == k ? P(dt, q) : P(dt, v[i]);
-    int o = orient3d(p[0], p[1], p[2], p[3]);
+    int o = orient3d(&dt->fl, p[0], p[1], p[2], p[3]);
     if (o) return o > 0;
     int32_t f[3], m = 0;
     for (int i = 0; i < 4; i++)
@@ -387,7 +406,7 @@ static int locate(DT *dt, int32_t q, int32_t *found) {
             if (f == came) continue;
             const double *p[4] = {P(dt, v[0]), P(dt, v[1]), P(dt, v[2]), P(dt, v[3])};
             p[f] = pq;
-            if (orient3d(p[0], p[1], p[2], p[3]) < 0) {
+            if (orient3d(&dt->fl, p[0], p[1], p[2], p[3]) < 0) {
                 int32_t code = TN(dt, t, f);
                 t = code >> 2;
                 came = code & 3;
@@ -420,14 +439,18 @@ static const int8_t OTHER[4][4][2] = {
     {{1, 2}, {0, 2}, {0, 1}, {-1, -1}},
 };
 
+/* Flags in a tet's record during one insertion: IN_CAVITY on v[0] (the tet is deleted at the end), TESTED_OUT on
+ * v[1] (cleared at the end). Vertex ids are below 2^26 + 1. */
+#define IN_CAVITY 0x40000000
+#define TESTED_OUT 0x40000000
+
 static int insert(DT *dt, int32_t q) {
     int32_t seed;
     int err = locate(dt, q, &seed);
     if (err) return err;
-    uint32_t in_mark = 2 * dt->stamp, out_mark = 2 * dt->stamp + 1;
     dt->stamp++;
     int64_t ns = 0, nb = 0, top = 0;
-    dt->mark[seed] = in_mark;
+    TV(dt, seed)[0] |= IN_CAVITY;
     dt->stack[ns++] = seed;
     /* breadth-first over the conflicting tets; stack[0..ns) is the cavity, top the next one to expand;
      * bnd[2 i], bnd[2 i + 1]: cavity tet and face of the i-th boundary face */
@@ -437,15 +460,15 @@ static int insert(DT *dt, int32_t q) {
         if (grow((void **)&dt->bnd, &dt->bnd_cap, 2 * (nb + 4), sizeof(int32_t))) return ERR_MEMORY;
         for (int f = 0; f < 4; f++) {
             int32_t u = TN(dt, t, f) >> 2;
-            uint32_t m = dt->mark[u];
-            if (m == in_mark) continue;
-            if (m != out_mark) {
+            int32_t *uv = TV(dt, u);
+            if (uv[0] & IN_CAVITY) continue;
+            if (!(uv[1] & TESTED_OUT)) {
                 if (conflict(dt, u, q)) {
-                    dt->mark[u] = in_mark;
+                    uv[0] |= IN_CAVITY;
                     dt->stack[ns++] = u;
                     continue;
                 }
-                dt->mark[u] = out_mark;
+                uv[1] |= TESTED_OUT;
             }
             dt->bnd[2 * nb] = t;
             dt->bnd[2 * nb + 1] = f;
@@ -456,18 +479,15 @@ static int insert(DT *dt, int32_t q) {
     int64_t need = 16;
     while (need < 4 * nb) need *= 2;
     if (need > dt->hcap) {
-        free(dt->hkeys);
-        free(dt->hvals);
-        free(dt->hstamp);
-        dt->hkeys = malloc((size_t)need * sizeof(uint64_t));
-        dt->hvals = malloc((size_t)need * sizeof(int32_t));
-        dt->hstamp = calloc((size_t)need, sizeof(uint32_t));
-        dt->hcap = dt->hkeys && dt->hvals && dt->hstamp ? need : 0;
-        if (!dt->hcap) return ERR_MEMORY;
+        free(dt->hash);
+        dt->hash = calloc((size_t)need, sizeof(HashSlot));
+        dt->hcap = dt->hash ? need : 0;
+        if (!dt->hash) return ERR_MEMORY;
     }
     const uint64_t hmask = (uint64_t)dt->hcap - 1;
     const uint32_t hs = dt->stamp; /* never 0: stamps start at 1 */
     const int32_t inf = dt->n;
+    HashSlot *hash = dt->hash;
     /* new tets: the cavity tet of each boundary face with the vertex opposite it replaced by q; the cavity tets
      * stay intact until all are made (the free list holds only earlier insertions' tets) */
     for (int64_t i = 0; i < nb; i++) {
@@ -476,9 +496,11 @@ static int insert(DT *dt, int32_t q) {
         if ((err = new_tet(dt, &t))) return err;
         int32_t *r = TV(dt, t);
         memcpy(r, TV(dt, ct), 4 * sizeof(int32_t));
+        r[0] &= ~IN_CAVITY;
         r[f] = q;
-        dt->mark[t] = 0;
-        glue(dt, t, f, TN(dt, ct, f));
+        int32_t out = TN(dt, ct, f);
+        TV(dt, out >> 2)[1] &= ~TESTED_OUT;
+        glue(dt, t, f, out);
         if (r[0] != inf && r[1] != inf && r[2] != inf && r[3] != inf) dt->last = t;
         for (int g = 0; g < 4; g++) {
             if (g == f) continue;
@@ -487,19 +509,17 @@ static int insert(DT *dt, int32_t q) {
             uint32_t lo = e0 < e1 ? e0 : e1, hi = e0 ^ e1 ^ lo;
             uint64_t key = ((uint64_t)lo << 32) | hi;
             uint64_t h = (key * 0x9E3779B97F4A7C15ull) >> 32;
-            for (;; h++) {
-                uint64_t s = h & hmask;
-                if (dt->hstamp[s] != hs) {
-                    dt->hstamp[s] = hs;
-                    dt->hkeys[s] = key;
-                    dt->hvals[s] = t * 4 + g;
-                    break;
-                }
-                if (dt->hkeys[s] == key) {
-                    glue(dt, t, g, dt->hvals[s]);
-                    break;
-                }
-            }
+            HashSlot *sl = hash + (h & hmask);
+            while (sl->stamp == hs && sl->key != key) sl = hash + (++h & hmask);
+            /* each key comes exactly twice: the first stores itself, the second links both (no branch on which
+             * one this is: the first writes its link into a dummy) */
+            int32_t partner = sl->stamp == hs ? sl->val : -1;
+            int32_t *back = partner >= 0 ? &TN(dt, partner >> 2, partner & 3) : &dt->dummy;
+            *back = t * 4 + g;
+            TN(dt, t, g) = partner;
+            sl->stamp = hs;
+            sl->key = key;
+            sl->val = t * 4 + g;
         }
     }
     /* free the cavity */
@@ -676,13 +696,10 @@ static void dt_free(DT *dt) {
     free(dt->x);
     free(dt->tt);
     free(dt->rank);
-    free(dt->mark);
     free(dt->free_list);
     free(dt->stack);
     free(dt->bnd);
-    free(dt->hkeys);
-    free(dt->hvals);
-    free(dt->hstamp);
+    free(dt->hash);
 }
 
 static int run(const int64_t *cells, int64_t n_in, Result *res) {
@@ -742,6 +759,7 @@ static int run(const int64_t *cells, int64_t n_in, Result *res) {
     int64_t span = 1;
     for (int a = 0; a < 3; a++)
         if (((hi[a] - lo[a]) >> shift) + 1 > span) span = ((hi[a] - lo[a]) >> shift) + 1;
+    filter_init(&dt.fl, (double)(span - 1));
     order = malloc((size_t)m * sizeof(uint64_t));
     otmp = malloc((size_t)m * sizeof(uint64_t));
     if (!order || !otmp) goto nomem;
@@ -792,7 +810,7 @@ static int run(const int64_t *cells, int64_t n_in, Result *res) {
         if (pick[2] < 0) goto done; /* collinear */
         const double *c = dt.x + 3 * pick[2];
         for (int64_t i = pick[2] + 1; i < m && pick[3] < 0; i++)
-            if (orient3d(a, b, c, dt.x + 3 * i)) pick[3] = i;
+            if (orient3d(&dt.fl, a, b, c, dt.x + 3 * i)) pick[3] = i;
         if (pick[3] < 0) goto done; /* coplanar */
     }
     dt.max_tets = TETS_PER_POINT * m + TETS_EXTRA;
@@ -805,14 +823,13 @@ static int run(const int64_t *cells, int64_t n_in, Result *res) {
         int64_t c = 8 * m + 64;
         if (c > dt.max_tets) c = dt.max_tets;
         dt.tt = malloc((size_t)c * 8 * sizeof(int32_t));
-        dt.mark = malloc((size_t)c * sizeof(uint32_t));
-        if (!dt.tt || !dt.mark) goto nomem;
+        if (!dt.tt) goto nomem;
         dt.cap = c;
     }
     {
         int32_t v[4];
         for (int i = 0; i < 4; i++) v[i] = (int32_t)pick[i];
-        if (orient3d(P(&dt, v[0]), P(&dt, v[1]), P(&dt, v[2]), P(&dt, v[3])) < 0) {
+        if (orient3d(&dt.fl, P(&dt, v[0]), P(&dt, v[1]), P(&dt, v[2]), P(&dt, v[3])) < 0) {
             int32_t t = v[0];
             v[0] = v[1];
             v[1] = t;
@@ -830,7 +847,6 @@ static int run(const int64_t *cells, int64_t n_in, Result *res) {
             g[s0] = g[s1];
             g[s1] = t;
         }
-        for (int i = 0; i < 5; i++) dt.mark[ids[i]] = 0;
         /* link faces with equal vertex sets */
         for (int t = 0; t < 5; t++)
             for (int f = 0; f < 4; f++)
@@ -879,7 +895,7 @@ static int run(const int64_t *cells, int64_t n_in, Result *res) {
         int k = v[0] == dt.n ? 0 : v[1] == dt.n ? 1 : v[2] == dt.n ? 2 : v[3] == dt.n ? 3 : -1;
         if (k < 0) {
             /* rule 5: every tet positively oriented (Bowyer-Watson with exact predicates guarantees it; checked) */
-            if (orient3d(P(&dt, v[0]), P(&dt, v[1]), P(&dt, v[2]), P(&dt, v[3])) <= 0) {
+            if (orient3d(&dt.fl, P(&dt, v[0]), P(&dt, v[1]), P(&dt, v[2]), P(&dt, v[3])) <= 0) {
                 err = ERR_FLAT;
                 goto fail;
             }
