@@ -53,7 +53,7 @@ def echo_warnings(caught: list) -> None:
 )
 @click.option(
     "--delaunay",
-    type=click.Choice(["file", "tetgen", "qhull"]),
+    type=click.Choice(["file", "exact", "tetgen", "qhull"]),
     default="file",
     help="Delaunay backend: 'file' uses the one the encoder recorded, which reproduces its mesh exactly.",
 )

@@ -17,7 +17,7 @@ from tetweave_codec.geometry.sh import SH_DEGREE_MAX, SH_DEGREE_NONE, check_degr
 
 MAGIC = b"\x89TWV\r\n\x1a\n"  # bytes 0-7 of every version; the uint16 version follows at offset 8
 CHECKSUM_SIZE = 4  # CRC-32 (zlib) of every byte before it, the file's last 4 bytes
-FLAG_QHULL = 1 << 0  # the encoder's Delaunay backend was Qhull (else TetGen)
+FLAG_QHULL = 1 << 0  # the encoder's Delaunay backend was Qhull (else TetGen, or the exact Delaunay: BITS_EXACT)
 FLAG_S_PREDICTED = 1 << 1  # version 2: the s stream holds residuals of the neighbour prediction (formats/predict.py)
 FLAG_OCTREE_CONTEXTS = 1 << 2  # version 2: octree levels may be coded bit by bit with neighbour contexts (octree.py)
 # version 2, bits 3-4: the number of Taubin smoothing steps the decoder applies (geometry/smoothing.py), 0-3
@@ -33,9 +33,11 @@ MAX_SUBDIVISION = 2
 FLAG_HOLES = 1 << 7
 KNOWN_FLAGS = FLAG_QHULL  # version 1
 # version 2, the position-bits byte (offset 12): b in its bits 0-4; bit 7 asks for crease-preserving smoothing
-# (geometry/smoothing.py, crease_neighbours); bits 5-6 are 0. The flags byte had no bit left; a decoder that
-# predates the bit reads b > 16 and rejects the file instead of smoothing its creases away.
+# (geometry/smoothing.py, crease_neighbours); bit 6 says the points are triangulated by the exact Delaunay of the
+# spec (geometry/delaunay.py, backend "exact"; flags bit 0 is then 0); bit 5 is 0. The flags byte had no bit left;
+# a decoder that predates a bit reads b > 16 and rejects the file instead of decoding it wrongly.
 BITS_CREASES = 1 << 7
+BITS_EXACT = 1 << 6
 KNOWN_FLAGS_V2 = FLAG_QHULL | FLAG_S_PREDICTED | FLAG_OCTREE_CONTEXTS | FLAG_SMOOTHING | FLAG_SUBDIVISION | FLAG_HOLES
 # Largest normalized coordinate of version 1 (any finite float16); version 2's is the grid's, quantize.GRID_BOUND.
 COORDINATE_BOUND_V1 = float(np.finfo(np.float16).max)
@@ -66,16 +68,26 @@ def subdivision_levels(flags: int) -> int:
 
 
 def backend_flags(backend: str) -> int:
-    """Flags bits recording the Delaunay backend ("tetgen" or "qhull")."""
-    if backend == "tetgen":
+    """Flags bits recording the Delaunay backend: "tetgen" (0) or "qhull" (bit 0); "exact" is 0 here and recorded
+    by BITS_EXACT in a version-2 file's position-bits byte (`backend_bits`); version 1 cannot record it."""
+    if backend in ("tetgen", "exact"):
         return 0
     if backend == "qhull":
         return FLAG_QHULL
     raise ValueError(f"unknown Delaunay backend {backend!r}")
 
 
-def backend_name(flags: int) -> str:
-    """The Delaunay backend ("tetgen" or "qhull") recorded in a file's flags; the decoder must use the same."""
+def backend_bits(backend: str) -> int:
+    """Position-bits byte bits recording the Delaunay backend of a version-2 file (BITS_EXACT for "exact")."""
+    backend_flags(backend)  # validates the name
+    return BITS_EXACT if backend == "exact" else 0
+
+
+def backend_name(flags: int, exact: bool = False) -> str:
+    """The Delaunay backend recorded in a file: "exact" with BITS_EXACT (version 2), else "qhull" or "tetgen" after
+    flags bit 0; the decoder must use the same."""
+    if exact:
+        return "exact"
     return "qhull" if flags & FLAG_QHULL else "tetgen"
 
 

@@ -7,11 +7,12 @@ offset  size       type     field
 ======  =========  =======  ==========================================================================
 0       8          bytes    magic ``89 54 57 56 0D 0A 1A 0A`` (as version 1)
 8       2          uint16   version = 2
-10      1          uint8    flags; bit 0: Delaunay backend (0 = TetGen, 1 = Qhull); bit 1: s predicted;
+10      1          uint8    flags; bit 0: Delaunay backend (0 = TetGen or exact, 1 = Qhull); bit 1: s predicted;
                             bit 2: octree context-coded; bits 3-4: smoothing steps 0-3;
                             bits 5-6: subdivision levels 0-2; bit 7: holes section
 11      1          int8     SH degree d in -1..3
-12      1          uint8    bits 0-4: position bits b in 6..16; bit 7: crease-preserving smoothing; bits 5-6: 0
+12      1          uint8    bits 0-4: position bits b in 6..16; bit 6: the exact Delaunay (formats/README.md,
+                            "Decoding" step 2; flags bit 0 then 0); bit 7: crease-preserving smoothing; bit 5: 0
 13      4          uint32   N, number of points (<= MAX_POINTS)
 17      8          float64  scale    } original = normalized * scale + offset
 25      24         float64  offset x, y, z
@@ -41,8 +42,10 @@ from . import attributes, common, holes, octree
 from . import quantize as Q
 from .common import (
     BITS_CREASES,
+    BITS_EXACT,
     CHECKSUM_SIZE,
     FLAG_HOLES,
+    FLAG_QHULL,
     FLAG_S_PREDICTED,
     KNOWN_FLAGS_V2,
     MAGIC,
@@ -108,8 +111,13 @@ class TetWeaveFileV2:
     sizes: dict | None = field(default=None, compare=False)
     holes: np.ndarray | None = None
     creases: bool = False
+    exact: bool | None = None
 
     version = VERSION
+
+    def __post_init__(self):
+        if self.exact is None:
+            object.__setattr__(self, "exact", not int(self.flags) & FLAG_QHULL)
 
     @property
     def num_points(self) -> int:
@@ -117,7 +125,7 @@ class TetWeaveFileV2:
 
     @property
     def backend(self) -> str:
-        return backend_name(self.flags)
+        return backend_name(self.flags, self.exact)
 
     @property
     def smoothing(self) -> int:
@@ -159,8 +167,10 @@ def quantize_file(
     scale: float = 1.0,
     offset=(0.0, 0.0, 0.0),
     flags: int = 0,
+    exact: bool | None = None,
 ) -> tuple[TetWeaveFileV2, np.ndarray]:
     """Quantize float arrays into a TetWeaveFileV2 (collisions merged, first occurrence wins; canonical order).
+    exact: the exact Delaunay (None: unless flags bit 0 names Qhull).
 
     Returns (file, kept): ``kept`` (M,) int64 are the input indices of the stored points, in file order.
     """
@@ -177,6 +187,7 @@ def quantize_file(
     f = TetWeaveFileV2(
         cells, s_sym, c_sym, int(position_bits), Q.stored_step(s_step), steps, degree, float(scale),
         np.asarray(offset, dtype=np.float64), int(flags),
+        exact=exact,
     )  # fmt: skip
     return f, kept
 
@@ -220,6 +231,8 @@ def pack_v2(f: TetWeaveFileV2) -> bytes:
     for problem in _step_problems(s_step, band_steps):
         raise ValueError(problem)
     scale, offset, flags = checked_fields(f.scale, f.offset, f.flags, KNOWN_FLAGS_V2, Q.GRID_BOUND)
+    if f.exact and flags & FLAG_QHULL:
+        raise ValueError("a file triangulated by the exact Delaunay has flags bit 0 (Qhull) clear")
     if subdivision_levels(flags) > MAX_SUBDIVISION:
         raise ValueError(f"subdivision levels must be 0-{MAX_SUBDIVISION}, got {subdivision_levels(flags)}")
     hole_ranks = np.zeros(0, np.int64) if f.holes is None else np.asarray(f.holes, dtype=np.int64).reshape(-1)
@@ -235,7 +248,7 @@ def pack_v2(f: TetWeaveFileV2) -> bytes:
         if n == 0:
             raise ValueError("a holes section needs points")
         sections += (holes.encode_holes(hole_ranks),)
-    bits_byte = bits | (BITS_CREASES if f.creases else 0)
+    bits_byte = bits | (BITS_CREASES if f.creases else 0) | (BITS_EXACT if f.exact else 0)
     header = struct.pack(FIXED_FORMAT, MAGIC, VERSION, flags, degree, bits_byte, n, scale, *offset, s_step)
     header += struct.pack(f"<{degree + 1}f", *band_steps)
     header += struct.pack(f"<{len(sections)}I", *(len(x) for x in sections))
@@ -257,7 +270,8 @@ def unpack_v2(buf: bytes) -> TetWeaveFileV2:
     """Parse and validate a version-2 file (magic and version already checked). Raises ContainerError only."""
     require_size(buf, header_size(SH_DEGREE_NONE) + CHECKSUM_SIZE, "a version-2 header")
     (_, _, flags, degree, bits_byte, n, scale, ox, oy, oz, s_step) = struct.unpack_from(FIXED_FORMAT, buf, 0)
-    creases, bits = bool(bits_byte & BITS_CREASES), bits_byte & ~BITS_CREASES
+    creases, exact = bool(bits_byte & BITS_CREASES), bool(bits_byte & BITS_EXACT)
+    bits = bits_byte & ~(BITS_CREASES | BITS_EXACT)
     degree = read_sh_degree(degree)
     with_holes = bool(flags & FLAG_HOLES)
     hsize = header_size(degree, with_holes)
@@ -268,6 +282,8 @@ def unpack_v2(buf: bytes) -> TetWeaveFileV2:
     check_envelope(buf, hsize + sum(section_sizes) + CHECKSUM_SIZE)
     # Behind a valid checksum: the remaining checks catch files written wrongly (or forged) rather than damaged.
     flags = read_flags(flags, KNOWN_FLAGS_V2)
+    if exact and flags & FLAG_QHULL:
+        raise ContainerError("invalid .tw header: two Delaunay backends (exact, and Qhull in flags bit 0)")
     if subdivision_levels(flags) > MAX_SUBDIVISION:
         raise ContainerError(
             f"invalid .tw header: {subdivision_levels(flags)} subdivision levels (expected 0..{MAX_SUBDIVISION})"
@@ -301,5 +317,5 @@ def unpack_v2(buf: bytes) -> TetWeaveFileV2:
     sizes = {"header": hsize, **dict(zip(names, section_sizes, strict=True)), "checksum": CHECKSUM_SIZE}
     return TetWeaveFileV2(
         cells, s_sym, c_sym, int(bits), float(s_step), tuple(float(x) for x in band_steps), degree,
-        scale, offset, flags, sizes, hole_ranks, creases,
+        scale, offset, flags, sizes, hole_ranks, creases, exact,
     )  # fmt: skip

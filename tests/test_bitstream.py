@@ -262,7 +262,8 @@ def test_real_fitted_shape_round_trip_and_dequantized_arrays():
     assert np.array_equal(g.points, Q.dequantize_positions(g.cells, 11))
     assert np.array_equal(g.s, (g.s_sym + 0.5) * g.s_step)
     assert np.array_equal(g.c, g.c_sym * Q.c_steps(2, g.c_band_steps))
-    assert g.backend == "tetgen" and tw.unpack(pack_v2(random_file(flags=1))).backend == "qhull"
+    assert g.backend == "exact" and g.exact and tw.unpack(pack_v2(random_file(flags=1))).backend == "qhull"
+    assert tw.unpack(pack_v2(replace(f, exact=False))).backend == "tetgen"
 
 
 def test_pack_v2_rejects_bad_contents():
@@ -388,7 +389,8 @@ def test_context_coded_octree_models_are_validated():
 
 
 def test_files_without_the_new_flags_keep_their_bytes():
-    """Golden digests of files written before flag bit 2 existed: the plain codings must not change."""
+    """Golden digests of files written before flag bit 2 existed: the plain codings must not change (TetGen
+    files: the exact Delaunay's bit 6 of byte 12 is the only other change, `test_exact_bit_...`)."""
     import hashlib
 
     digests = {
@@ -396,7 +398,8 @@ def test_files_without_the_new_flags_keep_their_bytes():
         2: "1991eef63264eb9d5bd9fed91b02bb3d032028ab5e8eeaac26cffcc0346a0cfa",
     }
     for flags, digest in digests.items():
-        assert hashlib.sha256(pack_v2(random_file(n=300, degree=1, bits=10, seed=5, flags=flags))).hexdigest() == digest
+        f = replace(random_file(n=300, degree=1, bits=10, seed=5, flags=flags), exact=False)
+        assert hashlib.sha256(pack_v2(f)).hexdigest() == digest
 
 
 def test_octree_never_yields_more_points_than_announced():
@@ -543,7 +546,8 @@ def test_n_above_the_format_limit_is_rejected_before_decoding():
         (12, "<B", 5, "position bits"),
         (12, "<B", 17, "position bits"),
         (12, "<B", 9 | 1 << 5, "position bits"),  # bits 5-6 of the position-bits byte are 0
-        (12, "<B", 9 | 1 << 6, "position bits"),
+        (12, "<B", 17 | 1 << 6, "position bits"),  # nor the exact Delaunay's bit
+        (12, "<B", 9 | 1 << 5 | 1 << 6, "position bits"),
         (12, "<B", 17 | 1 << 7, "position bits"),  # the creases bit does not make b 17 valid
         (17, "<d", 0.0, "scale"),
         (17, "<d", float("inf"), "scale"),
@@ -650,14 +654,31 @@ def test_decode_and_info_read_version_2(tmp_path):
         assert word in out.output
 
 
+def test_exact_bit_is_bit_6_of_the_position_bits_byte():
+    """The exact Delaunay is bit 6 of byte 12 (formats/README.md): what the encoder writes; a file without it names
+    TetGen or Qhull in flags bit 0, and the two together are refused on both sides."""
+    f = random_file(n=40, degree=1, bits=9)
+    exact = pack_v2(f)
+    legacy = pack_v2(replace(f, exact=False))
+    assert exact[12] == 9 | 1 << 6 and legacy[12] == 9
+    assert exact[:12] == legacy[:12] and exact[13:-4] == legacy[13:-4]  # that byte and the checksum only
+    assert tw.unpack(exact).backend == "exact" and tw.unpack(legacy).backend == "tetgen"
+    with pytest.raises(ValueError, match="Qhull"):
+        pack_v2(replace(f, flags=f.flags | 1, exact=True))
+    both = bytearray(exact)
+    both[10] |= 1
+    with pytest.raises(ContainerError, match="two Delaunay backends"):
+        tw.unpack(reseal(both))
+
+
 def test_creases_bit_is_bit_7_of_the_position_bits_byte():
     """Crease-preserving smoothing is bit 7 of byte 12 (formats/README.md): b keeps bits 0-4, and a file without
     the bit keeps its bytes."""
     f = random_file(n=40, degree=1, bits=9)
     plain = pack_v2(f)
-    assert plain[12] == 9 and not tw.unpack(plain).creases
+    assert plain[12] == 9 | 1 << 6 and not tw.unpack(plain).creases
     marked = pack_v2(replace(f, creases=True))
-    assert marked[12] == 9 | 1 << 7
+    assert marked[12] == 9 | 1 << 6 | 1 << 7
     assert marked[:12] == plain[:12] and marked[13:-4] == plain[13:-4]  # that byte and the checksum only
     g = tw.unpack(marked)
     assert g.creases and g.position_bits == 9

@@ -30,6 +30,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from tetweave_codec.errors import ContainerError
 from tetweave_codec.geometry.delaunay import available_backends, tetrahedralize
 from tetweave_codec.geometry.holes import open_holes
 from tetweave_codec.geometry.intersections import resolve_threads
@@ -114,7 +115,7 @@ def mesh_from_points(
         s: (N,) base signed distance, s < 0 inside.
         c: (N, q) SH coefficients, q = (sh_degree + 1) ** 2; None or (N, 0) when sh_degree is -1.
         sh_degree: -1..3.
-        backend: Delaunay backend, "auto", "tetgen" or "qhull" (must match the container's flags).
+        backend: Delaunay backend, "auto", "exact", "tetgen" or "qhull" (must match the container's).
         smoothing: Taubin steps 0-3 (the container's flags bits 3-4).
         subdivision: Loop levels 0-2 after the smoothing (flags bits 5-6).
         creases: crease-preserving smoothing (bit 7 of the position-bits byte).
@@ -224,21 +225,30 @@ def decode_detailed(
     t0 = clock()
     tw = unpack(data)
     seconds["unpack"] = clock() - t0
+    fallback = False
     if backend is None:
         backend = tw.backend
         if backend not in available_backends():
+            fallback = True
             warnings.warn(
                 f"this file was triangulated with {backend}, which is not installed; decoding with "
-                f"{available_backends()[0]} (the mesh may differ where points are cospherical)",
+                f"{available_backends()[0]} (the mesh may differ where points are cospherical; "
+                f"pip install 'tetweave[tetgen]' reproduces the encoder's mesh)",
                 DecodeWarning,
                 stacklevel=2,
             )
             backend = available_backends()[0]
     smoothing, subdivision = level_filter(tw.smoothing, tw.subdivision, level)
-    ex = _extract(
-        tw.points, tw.s, tw.c, tw.sh_degree, backend, seconds, clock, smoothing, subdivision, tw.creases,
-        float(tw.scale), np.asarray(tw.offset, dtype=np.float64), threads,
-    )  # fmt: skip
+    try:
+        ex = _extract(
+            tw.points, tw.s, tw.c, tw.sh_degree, backend, seconds, clock, smoothing, subdivision, tw.creases,
+            float(tw.scale), np.asarray(tw.offset, dtype=np.float64), threads,
+        )  # fmt: skip
+    except ContainerError as exc:
+        if not fallback:
+            raise
+        hint = f"this file needs {tw.backend}: pip install 'tetweave[tetgen]'"
+        raise ContainerError(f"{exc} with {backend}; {hint}") from exc
     closed_v = ex.vertices
     vertices, faces = closed_v, ex.faces
     holes = tw.holes

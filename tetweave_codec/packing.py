@@ -146,6 +146,8 @@ def pack_result(result: FitResult, scale: float, offset: np.ndarray) -> bytes:
     if fin.version == 1:
         if result.smoothing or result.subdivision or result.creases:
             raise ValueError("container version 1 cannot store smoothing or subdivision")
+        if result.backend == "exact":
+            raise ValueError("container version 1 records TetGen or Qhull, not the exact Delaunay")
         return pack(TetWeaveFile(points=fin.points, s=fin.s, c=fin.c, **shared))
     shared["flags"] |= smoothing_flags(result.smoothing) | subdivision_flags(result.subdivision)
     q = fin.quantization
@@ -165,6 +167,7 @@ def pack_result(result: FitResult, scale: float, offset: np.ndarray) -> bytes:
             s_step=q.s_step,
             c_band_steps=steps,
             creases=bool(result.creases and (result.smoothing or result.subdivision)),
+            exact=result.backend == "exact",
             **shared,
         )
     )

@@ -60,7 +60,7 @@ from tetweave_codec.fit.targets import render_targets
 from tetweave_codec.formats.quantize import GRID_BOUND
 from tetweave_codec.geometry.active import active_mask, one_ring_mask
 from tetweave_codec.geometry.closest import SurfaceTree
-from tetweave_codec.geometry.delaunay import resolve_backend
+from tetweave_codec.geometry.delaunay import available_backends, resolve_backend
 from tetweave_codec.geometry.sh import check_degree, num_coeffs
 from tetweave_codec.geometry.triangles import sample_surface
 from tetweave_codec.render import render_maps
@@ -348,13 +348,21 @@ def prepare(
         config=config,
         targets=targets,
         surface=surface,
-        backend=resolve_backend(config.backend),
+        backend=_fit_backend(config),
         device=device,
         generator=torch.Generator().manual_seed(config.seed),
         progress=progress,
     )
     ctx.seconds["targets"] = time.perf_counter() - t0
     return ctx
+
+
+def _fit_backend(config: FitConfig) -> str:
+    """The Delaunay backend of a fit: the decoder's ("auto": the exact Delaunay); container version 1 records only
+    TetGen or Qhull, so "auto" there is the first of those installed."""
+    if config.quantization is None and config.backend == "auto":
+        return next(b for b in available_backends() if b != "exact")
+    return resolve_backend(config.backend)
 
 
 def start(vertices: np.ndarray, faces: np.ndarray, ctx: FitContext, prepared: PreparedInput | None = None) -> Params:

@@ -176,11 +176,14 @@ class Tetrahedralization(NamedTuple):
 
 
 def _has_tetgen() -> bool:
-    try:
-        import tetgenpy  # noqa: F401
-    except ImportError:
-        return False
-    return True
+    """Whether tetgenpy is installed, without importing it: encode and decode of files that do not name TetGen
+    never load an AGPL module (tests/test_license.py)."""
+    import importlib.util
+    import sys
+
+    if "tetgenpy" in sys.modules:  # imported already, or hidden (None) by a test
+        return sys.modules["tetgenpy"] is not None
+    return importlib.util.find_spec("tetgenpy") is not None
 
 
 def available_backends() -> tuple[str, ...]:
