@@ -10,7 +10,7 @@ section sizes and recomputes the CRC so that the mutation reaches the parsers be
 
 * ``field``: one header field (flags, SH degree, position bits, N, scale, offset, s step, a c step) set to an
   extreme or boundary value of its type (0, 1, max, max + 1, NaN, inf, subnormal, the value +-1, ...) or to
-  a plausible one (the value times 0.25..4); ``backend``: the Delaunay flag toggled (a valid file);
+  a plausible one (the value times 0.25..4); ``backend``: a Delaunay backend bit toggled (flags bit 0 or byte 12 bit 6);
 * ``sizes``: a section size field set to an extreme value without moving any byte (the file disagrees);
 * ``boundary``: a boundary between two sections moved by 1..64 bytes (or to an extreme), total unchanged;
 * ``splice``: a section replaced by the same section of another seed file;
@@ -51,6 +51,7 @@ import numpy as np
 
 from tetweave_codec.formats import quantize as Q
 from tetweave_codec.formats.common import (
+    BITS_EXACT,
     CHECKSUM_SIZE,
     FLAG_HOLES,
     FLAG_OCTREE_CONTEXTS,
@@ -120,7 +121,9 @@ def seed_files(seed: int = 0, max_points: int = 3000, holes: bool = True) -> lis
         cells, sdf = _shell_cells(rng, bits, count, "torus" if k % 2 else "sphere")
         q = (degree + 1) ** 2
         c = rng.normal(scale=0.4, size=(len(cells), q))
-        flags = (FLAG_QHULL if k % 3 == 1 else 0) | (FLAG_S_PREDICTED if k % 4 != 3 else 0)
+        # Delaunay backends: the exact Delaunay (what the encoder writes), Qhull, TetGen (earlier encoders' files)
+        backend = ("exact", "qhull", "tetgen")[k % 3]
+        flags = (FLAG_QHULL if backend == "qhull" else 0) | (FLAG_S_PREDICTED if k % 4 != 3 else 0)
         flags |= FLAG_OCTREE_CONTEXTS if k % 5 in (1, 2, 4) else 0  # context-coded positions in 3 of 5
         flags |= smoothing_flags(k % 4)  # smoothing 0-3 steps
         flags |= subdivision_flags((k // 4) % 3)  # subdivision 0-2 levels, with every smoothing
@@ -128,10 +131,10 @@ def seed_files(seed: int = 0, max_points: int = 3000, holes: bool = True) -> lis
             Q.dequantize_positions(cells, bits), sdf + rng.normal(scale=2e-3, size=len(sdf)), c, degree,
             position_bits=bits, s_step=float(rng.choice([2e-4, 5e-4, 1e-3])),
             c_band_steps=[float(rng.choice([0.1, 0.2, 0.3]))] * (degree + 1),
-            scale=float(rng.uniform(0.1, 10)), offset=rng.normal(size=3), flags=flags,
+            scale=float(rng.uniform(0.1, 10)), offset=rng.normal(size=3), flags=flags, exact=backend == "exact",
         )  # fmt: skip
         ctx = "-ctx" if flags & FLAG_OCTREE_CONTEXTS else ""
-        name = f"b{bits}-d{degree}-{'qhull' if flags & FLAG_QHULL else 'tetgen'}{ctx}-n{f.num_points}"
+        name = f"b{bits}-d{degree}-{backend}{ctx}-n{f.num_points}"
         files.append((name, pack_v2(f)))
     for n in (0, 1, 2, 3, 4, 5):
         cells = rng.choice(2**18, size=n, replace=False)
@@ -252,7 +255,12 @@ def _m_field(rng, parts, others):
 
 
 def _m_backend(rng, parts, others):
-    parts.header[10] ^= FLAG_QHULL  # a valid file triangulated by the other backend
+    """A valid file triangulated by another backend: one of flags bit 0 (Qhull) and byte 12 bit 6 (exact) toggled
+    (both set: refused)."""
+    if rng.random() < 0.5:
+        parts.header[10] ^= FLAG_QHULL
+    else:
+        parts.header[12] ^= BITS_EXACT
     return "backend"
 
 
@@ -559,6 +567,8 @@ class Campaign:
 
 
 def _backend_flag(data: bytes) -> str:
+    if len(data) > 12 and data[12] & BITS_EXACT:
+        return "exact"
     return "qhull" if len(data) > 10 and data[10] & FLAG_QHULL else "tetgen"
 
 
@@ -615,13 +625,13 @@ def report(result: Campaign, seeds: list[tuple[str, bytes]], cases: int, seed: i
         "crashes): "
         f"**{result.failures}**.",
         "",
-        "| outcome | cases | TetGen flag | Qhull flag |",
-        "|---|---:|---:|---:|",
+        "| outcome | cases | exact | TetGen flag | Qhull flag |",
+        "|---|---:|---:|---:|---:|",
     ]
     for name in OUTCOMES:
         lines.append(
-            f"| {name} | {result.counts[name]:,} | {result.by_backend[name, 'tetgen']:,} | "
-            f"{result.by_backend[name, 'qhull']:,} |"
+            f"| {name} | {result.counts[name]:,} | {result.by_backend[name, 'exact']:,} | "
+            f"{result.by_backend[name, 'tetgen']:,} | {result.by_backend[name, 'qhull']:,} |"
         )
     lines += ["", "Mutations applied: " + ", ".join(f"{k} {v:,}" for k, v in result.mutations.most_common()), ""]
     lines += ["Rejections by message:", ""] + [f"* {k}: {v:,}" for k, v in result.reasons.most_common()]

@@ -22,7 +22,7 @@ def test_seed_files_are_valid_and_cover_both_backends(small_seeds):
     outcomes = [fuzz.classify(data)[0] for _, data in small_seeds]
     assert set(outcomes) <= {"closed", "open", "empty"} and outcomes.count("closed") >= 15
     assert outcomes.count("open") >= 3  # files with a holes section (flags bit 7)
-    assert {fuzz._backend_flag(data) for _, data in small_seeds} == {"tetgen", "qhull"}
+    assert {fuzz._backend_flag(data) for _, data in small_seeds} == {"exact", "tetgen", "qhull"}
     assert {data[11] for _, data in small_seeds} == {255, 0, 1, 2, 3}  # SH degrees -1..3 (int8 byte)
     assert {(data[10] >> 3) & 3 for _, data in small_seeds} == {0, 1, 2, 3}  # smoothing steps (flags bits 3-4)
 
@@ -78,7 +78,8 @@ def test_smoke_campaign(small_seeds):
     assert result.findings == [] and result.failures == 0
     assert sum(result.counts.values()) == 300
     assert result.counts["rejected"] > 100
-    assert result.by_backend["closed", "tetgen"] > 5 and result.by_backend["closed", "qhull"] > 5
+    assert result.by_backend["closed", "exact"] > 5 and result.by_backend["closed", "qhull"] > 5
+    assert result.by_backend["closed", "tetgen"] > 5
     assert result.counts["open"] > 0
 
 
