@@ -98,20 +98,6 @@
 
 typedef __int128 i128;
 
-#ifdef DT_STATS
-#include <stdio.h>
-#include <time.h>
-static double now(void) {
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return ts.tv_sec + 1e-9 * ts.tv_nsec;
-}
-static double t_prep, t_ins, t_out;
-static int64_t st_orient, st_orient_exact, st_insph, st_insph_exact, st_walk, st_cav, st_bnd, st_sym;
-#define STAT(x) (x++)
-#else
-#define STAT(x) ((void)0)
-#endif
 
 /* Forward error bounds of the binary64 filters, relative to the computed permanent. orient3d: differences and 2x2
  * minors are exact, 3 roundings remain (<= 3.01 u, u = 2^-53); insphere: lifts, differences and 2x2 minors are
@@ -130,7 +116,6 @@ static const int HULL_FACE[4][3] = {{1, 3, 2}, {0, 2, 3}, {0, 3, 1}, {0, 1, 2}};
 /* predicates on the (translated, scaled) coordinates; a vertex is a pointer to 3 doubles holding integers */
 
 static int orient_exact(const double *a, const double *b, const double *c, const double *d) {
-    STAT(st_orient_exact);
     int64_t bx = (int64_t)b[0] - (int64_t)a[0], by = (int64_t)b[1] - (int64_t)a[1], bz = (int64_t)b[2] - (int64_t)a[2];
     int64_t cx = (int64_t)c[0] - (int64_t)a[0], cy = (int64_t)c[1] - (int64_t)a[1], cz = (int64_t)c[2] - (int64_t)a[2];
     int64_t dx = (int64_t)d[0] - (int64_t)a[0], dy = (int64_t)d[1] - (int64_t)a[1], dz = (int64_t)d[2] - (int64_t)a[2];
@@ -154,7 +139,6 @@ static void filter_init(Filter *fl, double span) {
 
 /* sign det[b - a, c - a, d - a] */
 static inline int orient3d(const Filter *fl, const double *a, const double *b, const double *c, const double *d) {
-    STAT(st_orient);
     double bx = b[0] - a[0], by = b[1] - a[1], bz = b[2] - a[2];
     double cx = c[0] - a[0], cy = c[1] - a[1], cz = c[2] - a[2];
     double dx = d[0] - a[0], dy = d[1] - a[1], dz = d[2] - a[2];
@@ -170,7 +154,6 @@ static inline int orient3d(const Filter *fl, const double *a, const double *b, c
 }
 
 static int insphere_exact(const double *a, const double *b, const double *c, const double *d, const double *e) {
-    STAT(st_insph_exact);
     int64_t ax = (int64_t)a[0] - (int64_t)e[0], ay = (int64_t)a[1] - (int64_t)e[1], az = (int64_t)a[2] - (int64_t)e[2];
     int64_t bx = (int64_t)b[0] - (int64_t)e[0], by = (int64_t)b[1] - (int64_t)e[1], bz = (int64_t)b[2] - (int64_t)e[2];
     int64_t cx = (int64_t)c[0] - (int64_t)e[0], cy = (int64_t)c[1] - (int64_t)e[1], cz = (int64_t)c[2] - (int64_t)e[2];
@@ -191,7 +174,6 @@ static int insphere_exact(const double *a, const double *b, const double *c, con
  * positively oriented tet) */
 static inline int insphere_w(const Filter *fl, const double *a, const double *b, const double *c, const double *d,
                              const double *e) {
-    STAT(st_insph);
     double ax = a[0] - e[0], ay = a[1] - e[1], az = a[2] - e[2];
     double bx = b[0] - e[0], by = b[1] - e[1], bz = b[2] - e[2];
     double cx = c[0] - e[0], cy = c[1] - e[1], cz = c[2] - e[2];
@@ -299,7 +281,6 @@ static int conflict_finite(const DT *dt, const int32_t *v, int32_t q) {
     int s = insphere_w(&dt->fl, P(dt, v[0]), P(dt, v[1]), P(dt, v[2]), P(dt, v[3]), pq);
     if (s) return s > 0;
     /* symbolic perturbation: the five points in descending rank */
-    STAT(st_sym);
     const int32_t *rk = dt->rank;
     int32_t ids[5] = {rk[v[0]], rk[v[1]], rk[v[2]], rk[v[3]], rk[q]};
     int slot[5] = {0, 1, 2, 3, 4};
@@ -398,7 +379,6 @@ static int locate(DT *dt, int32_t q, int32_t *found) {
     const double *pq = P(dt, q);
     for (int64_t steps = 0; steps < 4 * dt->count + 64; steps++) {
         const int32_t *v = TV(dt, t);
-        STAT(st_walk);
         int r = (int)(xorshift(&dt->rng) & 3);
         int moved = 0;
         for (int j = 0; j < 4; j++) {
@@ -523,10 +503,6 @@ static int insert(DT *dt, int32_t q) {
         }
     }
     /* free the cavity */
-#ifdef DT_STATS
-    st_cav += ns;
-    st_bnd += nb;
-#endif
     if (grow((void **)&dt->free_list, &dt->free_cap, dt->nfree + ns, sizeof(int32_t))) return ERR_MEMORY;
     for (int64_t i = 0; i < ns; i++) {
         int32_t t = dt->stack[i];
@@ -710,9 +686,6 @@ static int run(const int64_t *cells, int64_t n_in, Result *res) {
     uint32_t *perm = NULL, *tmp = NULL, *key = NULL, *orig = NULL;
     uint64_t *order = NULL, *otmp = NULL;
     if (n_in < 4) return OK;
-#ifdef DT_STATS
-    double t0 = now();
-#endif
     perm = malloc((size_t)n_in * sizeof(uint32_t));
     tmp = malloc((size_t)n_in * sizeof(uint32_t));
     key = malloc((size_t)n_in * sizeof(uint32_t));
@@ -864,20 +837,11 @@ static int run(const int64_t *cells, int64_t n_in, Result *res) {
                     }
         dt.last = 0;
     }
-#ifdef DT_STATS
-    double t1 = now();
-#endif
     for (int64_t i = 2; i < m; i++) {
         if (i == pick[2] || i == pick[3]) continue;
         if ((err = insert(&dt, (int32_t)i))) goto fail;
     }
     /* 5: output */
-#ifdef DT_STATS
-    double t2 = now();
-    fprintf(stderr, "n %lld orient %lld exact %lld insphere %lld exact %lld sym %lld walk %lld cavity %lld boundary %lld\n",
-            (long long)m, (long long)st_orient, (long long)st_orient_exact, (long long)st_insph,
-            (long long)st_insph_exact, (long long)st_sym, (long long)st_walk, (long long)st_cav, (long long)st_bnd);
-#endif
     int64_t nt = 0, nh = 0;
     for (int64_t t = 0; t < dt.count; t++) {
         if (TV(&dt, t)[0] < 0) continue;
@@ -912,9 +876,6 @@ static int run(const int64_t *cells, int64_t n_in, Result *res) {
         }
     }
     if (sort_rows(res->tets, res->nt, n_in) || sort_rows(res->hull, res->nh, n_in)) goto nomem;
-#ifdef DT_STATS
-    fprintf(stderr, "prep %.1f ms insert %.1f ms output %.1f ms\n", 1e3 * (t1 - t0), 1e3 * (t2 - t1), 1e3 * (now() - t2));
-#endif
     goto done;
 nomem:
     err = ERR_MEMORY;
@@ -1009,7 +970,7 @@ static struct PyModuleDef module = {
     PyModuleDef_HEAD_INIT, "_delaunay_native",
     "Exact 3-D Delaunay tetrahedralization of integer points under a fixed symbolic perturbation "
     "(geometry/delaunay.py).",
-    -1, methods,
+    -1, methods, NULL, NULL, NULL, NULL,
 };
 
 PyMODINIT_FUNC PyInit__delaunay_native(void) { return PyModule_Create(&module); }
