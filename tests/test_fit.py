@@ -122,12 +122,18 @@ def test_flat_tets_by_the_exact_determinant():
 @pytest.mark.parametrize("seed", [2, 5, 32])
 def test_finalize_leaves_no_flat_tet_on_lattice_points(seed):
     """TetGen returns zero-volume tets for some subsets of a lattice (28 of 200 random 4^3 subsets); marching
-    tets would write zero-area triangles across their neighbours. The finish drops points until there are none."""
-    from tetweave_codec.geometry.delaunay import tetrahedralize
+    tets would write zero-area triangles across their neighbours. The finish drops points until there are none.
+    The exact Delaunay (the encoder's) never makes one."""
+    from tetweave_codec.geometry.delaunay import available_backends, tetrahedralize
 
     rng = np.random.default_rng(seed)
     grid = np.stack(np.meshgrid(*[np.arange(4)] * 3, indexing="ij"), -1).reshape(-1, 3)
     cells = (grid[rng.random(len(grid)) < 0.6] + 100).astype(np.int64)
+    exact = tetrahedralize(Q.dequantize_positions(cells, 9), "exact").tets
+    assert len(exact) and not fin.flat_tets(cells, exact).any()
+    assert fin._drop_flat_tets(cells, np.arange(len(cells)), 9, "exact")[0].tolist() == cells.tolist()
+    if "tetgen" not in available_backends():
+        pytest.skip("the TetGen half needs tetgenpy")
     before = tetrahedralize(Q.dequantize_positions(cells, 9), "tetgen").tets
     assert fin.flat_tets(cells, before).any()  # the case this guards against
     first = np.arange(len(cells)) * 10

@@ -492,7 +492,7 @@ def test_cached_topology_gives_the_same_mesh_and_follows_sign_changes():
 
     rng = np.random.default_rng(5)
     pts = rng.uniform(-1, 1, (300, 3))
-    grid = triangulate(pts, "tetgen")
+    grid = triangulate(pts, "exact")
     p = torch.tensor(pts, dtype=torch.float64, requires_grad=True)
     s0 = np.linalg.norm(pts, axis=1) - 0.6
     flipped = s0.copy()
@@ -514,6 +514,6 @@ def test_cached_topology_gives_the_same_mesh_and_follows_sign_changes():
         reused.append(cache.topology is before)
     assert reused == [False, True, False]  # reused exactly when no sign changed
     # a new triangulation (a new tets tensor) is never served from the cache
-    other = triangulate(pts[::-1].copy(), "tetgen")
+    other = triangulate(pts[::-1].copy(), "exact")
     out = extract(p, torch.tensor(s0), None, other, cache)
     assert torch.equal(out.faces, extract(p, torch.tensor(s0), None, other).faces)

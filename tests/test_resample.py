@@ -175,7 +175,7 @@ def test_interpolate_outside_takes_nearest_point(grid_points):
     np.testing.assert_array_equal(out, _linear(pts)[nearest])
 
 
-def test_interpolate_with_tetgen_grid():
+def test_interpolate_with_a_delaunay_grid():
     from tetweave_codec.geometry.delaunay import delaunay
 
     rng = np.random.default_rng(11)
