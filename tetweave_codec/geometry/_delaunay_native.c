@@ -582,81 +582,71 @@ static uint64_t splitmix64(uint64_t z) {
 /* output */
 
 typedef struct {
-    int64_t v[4];
+    uint32_t v[4]; /* indices into the caller's points (< 2^26) */
 } Row;
 
-static int cmp_row3(const void *pa, const void *pb) {
-    const Row *a = pa, *b = pb;
-    for (int i = 1; i < 4; i++)
-        if (a->v[i] != b->v[i]) return a->v[i] < b->v[i] ? -1 : 1;
-    return 0;
+/* row order after v[0]: (v[1], v[2], v[3]) */
+static inline int row_less(const Row *a, const Row *b) {
+    uint64_t ka = ((uint64_t)a->v[1] << 32) | a->v[2], kb = ((uint64_t)b->v[1] << 32) | b->v[2];
+    return ka < kb || (ka == kb && a->v[3] < b->v[3]);
 }
 
-/* Sort rows (width 3 or 4, v[0] the row's smallest entry, < n) lexicographically: a counting sort by v[0], then
- * each group by the rest (insertion sort, qsort for large groups). */
-static int sort_rows(Row *rows, int64_t m, int64_t n) {
-    if (m < 2) return OK;
+static int cmp_row3(const void *pa, const void *pb) {
+    return row_less(pa, pb) ? -1 : row_less(pb, pa) ? 1 : 0;
+}
+
+/* Sort rows (v[0] the row's smallest entry, < n) lexicographically: a counting sort by v[0] into `out`, then each
+ * group by the rest (insertion sort, qsort for large groups). */
+static int sort_rows(const Row *rows, Row *out, int64_t m, int64_t n) {
     int64_t *start = calloc((size_t)n + 1, sizeof(int64_t));
-    Row *tmp = malloc((size_t)m * sizeof(Row));
-    if (!start || !tmp) {
-        free(start);
-        free(tmp);
-        return ERR_MEMORY;
-    }
+    if (!start) return ERR_MEMORY;
     for (int64_t i = 0; i < m; i++) start[rows[i].v[0] + 1]++;
     for (int64_t k = 0; k < n; k++) start[k + 1] += start[k];
-    for (int64_t i = 0; i < m; i++) tmp[start[rows[i].v[0]]++] = rows[i];
+    for (int64_t i = 0; i < m; i++) out[start[rows[i].v[0]]++] = rows[i];
     int64_t lo = 0;
     for (int64_t k = 0; k < n; k++) {
         int64_t hi = start[k];
         if (hi - lo > 32)
-            qsort(tmp + lo, (size_t)(hi - lo), sizeof(Row), cmp_row3);
+            qsort(out + lo, (size_t)(hi - lo), sizeof(Row), cmp_row3);
         else
             for (int64_t i = lo + 1; i < hi; i++) {
-                Row r = tmp[i];
+                Row r = out[i];
                 int64_t j = i;
-                while (j > lo && cmp_row3(&tmp[j - 1], &r) > 0) {
-                    tmp[j] = tmp[j - 1];
+                while (j > lo && row_less(&r, &out[j - 1])) {
+                    out[j] = out[j - 1];
                     j--;
                 }
-                tmp[j] = r;
+                out[j] = r;
             }
         lo = hi;
     }
-    memcpy(rows, tmp, (size_t)m * sizeof(Row));
     free(start);
-    free(tmp);
     return OK;
 }
 
 /* (a, b, c, d) positively oriented -> the even permutation with the smallest first, the next smallest second */
-static void canonical_tet(int64_t *v) {
+static void canonical_tet(uint32_t *v) {
     int k = 0;
     for (int i = 1; i < 4; i++)
         if (v[i] < v[k]) k = i;
-    int64_t a = v[0], b = v[1], c = v[2], d = v[3];
-    int64_t w[4];
-    switch (k) { /* double transpositions: even */
-    case 0: w[0] = a, w[1] = b, w[2] = c, w[3] = d; break;
-    case 1: w[0] = b, w[1] = a, w[2] = d, w[3] = c; break;
-    case 2: w[0] = c, w[1] = d, w[2] = a, w[3] = b; break;
-    default: w[0] = d, w[1] = c, w[2] = b, w[3] = a; break;
-    }
+    static const int8_t EVEN[4][4] = {{0, 1, 2, 3}, {1, 0, 3, 2}, {2, 3, 0, 1}, {3, 2, 1, 0}}; /* double transpositions */
+    uint32_t w[4] = {v[EVEN[k][0]], v[EVEN[k][1]], v[EVEN[k][2]], v[EVEN[k][3]]};
     /* rotate the last three (a 3-cycle: even) so that the smallest comes first */
     int j = 1;
     if (w[2] < w[j]) j = 2;
     if (w[3] < w[j]) j = 3;
+    static const int8_t ROT[4][2] = {{0, 0}, {2, 3}, {3, 1}, {1, 2}};
     v[0] = w[0];
     v[1] = w[j];
-    v[2] = w[j == 3 ? 1 : j + 1];
-    v[3] = w[j == 1 ? 3 : j - 1];
+    v[2] = w[ROT[j][0]];
+    v[3] = w[ROT[j][1]];
 }
 
-static void canonical_tri(int64_t *v) {
+static void canonical_tri(uint32_t *v) {
     int k = 0;
     if (v[1] < v[k]) k = 1;
     if (v[2] < v[k]) k = 2;
-    int64_t a = v[k], b = v[(k + 1) % 3], c = v[(k + 2) % 3];
+    uint32_t a = v[k], b = v[(k + 1) % 3], c = v[(k + 2) % 3];
     v[0] = a, v[1] = b, v[2] = c;
 }
 
@@ -842,46 +832,55 @@ static int run(const int64_t *cells, int64_t n_in, Result *res) {
         if ((err = insert(&dt, (int32_t)i))) goto fail;
     }
     /* 5: output */
-    int64_t nt = 0, nh = 0;
-    for (int64_t t = 0; t < dt.count; t++) {
-        if (TV(&dt, t)[0] < 0) continue;
-        if (is_ghost(&dt, (int32_t)t))
-            nh++;
-        else
-            nt++;
-    }
-    res->tets = malloc((size_t)(nt ? nt : 1) * sizeof(Row));
-    res->hull = malloc((size_t)(nh ? nh : 1) * sizeof(Row));
-    if (!res->tets || !res->hull) goto nomem;
-    for (int64_t t = 0; t < dt.count; t++) {
-        const int32_t *v = TV(&dt, t);
-        if (v[0] < 0) continue;
-        int k = v[0] == dt.n ? 0 : v[1] == dt.n ? 1 : v[2] == dt.n ? 2 : v[3] == dt.n ? 3 : -1;
-        if (k < 0) {
-            /* rule 5: every tet positively oriented (Bowyer-Watson with exact predicates guarantees it; checked) */
-            if (orient3d(&dt.fl, P(&dt, v[0]), P(&dt, v[1]), P(&dt, v[2]), P(&dt, v[3])) <= 0) {
-                err = ERR_FLAT;
-                goto fail;
-            }
-            Row *r = res->tets + res->nt++;
-            for (int i = 0; i < 4; i++) r->v[i] = orig[v[i]];
-            canonical_tet(r->v);
-        } else {
-            Row *r = res->hull + res->nh++;
-            for (int i = 0; i < 3; i++) r->v[i] = orig[v[HULL_FACE[k][i]]];
-            r->v[3] = 0;
-            canonical_tri(r->v);
-            /* sort_rows compares v[1..3]: put the third entry last with v[3] = v[2] so the order is (v1, v2) */
-            r->v[3] = r->v[2];
+    {
+        Row *rows = malloc((size_t)(dt.count ? dt.count : 1) * sizeof(Row));
+        Row *tets = malloc((size_t)(dt.count ? dt.count : 1) * sizeof(Row));
+        if (!rows || !tets) {
+            free(rows);
+            free(tets);
+            goto nomem;
         }
+        int64_t nt = 0, nh = dt.count; /* tets from the front of rows, hull faces from the back */
+        for (int64_t t = 0; t < dt.count; t++) {
+            const int32_t *v = TV(&dt, t);
+            if (v[0] < 0) continue;
+            int k = v[0] == dt.n ? 0 : v[1] == dt.n ? 1 : v[2] == dt.n ? 2 : v[3] == dt.n ? 3 : -1;
+            if (k < 0) {
+                /* rule 5: every tet positively oriented (Bowyer-Watson with exact predicates guarantees it) */
+                if (orient3d(&dt.fl, P(&dt, v[0]), P(&dt, v[1]), P(&dt, v[2]), P(&dt, v[3])) <= 0) {
+                    free(rows);
+                    free(tets);
+                    err = ERR_FLAT;
+                    goto fail;
+                }
+                Row *r = rows + nt++;
+                for (int i = 0; i < 4; i++) r->v[i] = orig[v[i]];
+                canonical_tet(r->v);
+            } else {
+                Row *r = rows + --nh;
+                for (int i = 0; i < 3; i++) r->v[i] = orig[v[HULL_FACE[k][i]]];
+                canonical_tri(r->v);
+                r->v[3] = r->v[2]; /* sorted by (v1, v2, v3): v3 = v2 orders by (v1, v2) */
+            }
+        }
+        int64_t h = dt.count - nh;
+        err = sort_rows(rows, tets, nt, n_in);
+        if (!err) err = sort_rows(rows + nh, tets + nt, h, n_in);
+        free(rows);
+        if (err) {
+            free(tets);
+            goto fail;
+        }
+        res->tets = tets;
+        res->nt = nt;
+        res->hull = tets + nt; /* one allocation: free(res->tets) frees both */
+        res->nh = h;
     }
-    if (sort_rows(res->tets, res->nt, n_in) || sort_rows(res->hull, res->nh, n_in)) goto nomem;
     goto done;
 nomem:
     err = ERR_MEMORY;
 fail:
     free(res->tets);
-    free(res->hull);
     memset(res, 0, sizeof *res);
 done:
     free(perm);
@@ -946,12 +945,13 @@ static PyObject *py_tetrahedralize(PyObject *self, PyObject *args) {
     PyObject *hull = PyByteArray_FromStringAndSize(NULL, (Py_ssize_t)(res.nh * 24));
     if (tets && hull) {
         int64_t *out = (int64_t *)PyByteArray_AS_STRING(tets);
-        for (int64_t i = 0; i < res.nt; i++) memcpy(out + 4 * i, res.tets[i].v, 32);
+        for (int64_t i = 0; i < res.nt; i++)
+            for (int k = 0; k < 4; k++) out[4 * i + k] = res.tets[i].v[k];
         out = (int64_t *)PyByteArray_AS_STRING(hull);
-        for (int64_t i = 0; i < res.nh; i++) memcpy(out + 3 * i, res.hull[i].v, 24);
+        for (int64_t i = 0; i < res.nh; i++)
+            for (int k = 0; k < 3; k++) out[3 * i + k] = res.hull[i].v[k];
     }
     free(res.tets);
-    free(res.hull);
     if (!tets || !hull) {
         Py_XDECREF(tets);
         Py_XDECREF(hull);
