@@ -12,7 +12,8 @@ Each kind is built from a clean closed mesh (normalized frame), so the surface a
 For each kind and --size, the messy input is encoded with --surface all (the encode before the option) and
 auto, the clean truth with auto (the same bytes as all on a clean input), and each decoded mesh is measured
 against the truth: Chamfer distance (the truth's normalized frame), normal consistency, the share of the decoded
-area no outside view sees (fit.visible), closed 2-manifold. Encodes run one at a time with --threads.
+area no outside view sees (metrics.unseen, the encode summary's self-check), closed 2-manifold. Encodes run one
+at a time with --threads.
 
     python -m tetweave_codec.benchmarks.visible_surface --only spot --sizes 5k,10k --threads 1
 """
@@ -118,10 +119,10 @@ def build(kind: str, v: np.ndarray, f: np.ndarray):
 
 def measure(truth, out_v: np.ndarray, out_f: np.ndarray, samples: int = 100_000) -> dict:
     """The decoded mesh against the truth: Chamfer (truth's normalized frame), normal consistency, the share of its
-    area no outside view sees, closed 2-manifold."""
-    from tetweave_codec.fit.visible import visible_surface
+    area no outside view sees (metrics.unseen), closed 2-manifold."""
     from tetweave_codec.geometry.marching_tets import check_manifold
     from tetweave_codec.metrics.fidelity import chamfer_distance, fidelity, normalization, prepare_mesh, to_frame
+    from tetweave_codec.metrics.unseen import unseen_area_share
 
     tv, tf = truth
     scale, offset = normalization(tv)
@@ -133,7 +134,7 @@ def measure(truth, out_v: np.ndarray, out_f: np.ndarray, samples: int = 100_000)
         closed = True
     except Exception:
         closed = False
-    hidden = visible_surface(to_frame(out_v, scale, offset), out_f).hidden_share
+    hidden = unseen_area_share(out_v, out_f)  # the encode summary's self-check
     return {
         "chamfer": chamfer_distance(tv, tf, out_v, out_f, samples),
         "nc": fid.get("normal_consistency"),

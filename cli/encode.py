@@ -239,6 +239,11 @@ def encode(
     Several MESH arguments, directories (searched recursively) and @list.txt files (one path per line) make a
     batch: -o DIR is required, files run in parallel (--jobs local processes, or --ray), a re-run skips the files
     already done with the same input and options, and the exit status is 1 when any file failed.
+
+    Every encode checks its decoded mesh against something it did not fit to: the summary (and a batch's
+    manifest, unseen_area_share) gives the share of the decoded area that no outside view sees (32 renders of the
+    decoded mesh, 0.2-1.2 s, under 2 % of a default encode) and warns above 1 %: membranes or hidden parts kept
+    inside the solid.
     """
     from tetweave_codec.options import EncodeOptions
 
@@ -347,12 +352,29 @@ def _encode_one(mesh: Path, output: Path | None, opts, quiet: bool) -> None:
         if st.get("surface_reason"):
             click.echo(f"fitted every face of the input ({st['surface_reason']})")
         click.echo(f"Chamfer distance to the input (normalized frame): {chamfer}")
+    check = _self_check_lines(result)
     click.echo(_context_line(result, len(faces)))
     if "target_bytes" in st:
         click.echo(f"size target {st['target_bytes']:,} bytes: wrote {st['bytes']:,} ({st['rate_control']})")
     if "target_error" in st:
         click.echo(f"error target {st['target_error']:.3g}: reached {chamfer} ({st['rate_control']})")
+    if check is not None:
+        stages += f", self-check {check.seconds:.1f}s"
     click.echo(f"time {time.perf_counter() - t0:.1f}s on {st['device']} ({stages})")
+
+
+def _self_check_lines(result):
+    """Print the share of the decoded area no outside view sees (metrics.unseen, on the decoded mesh: not the
+    surface the fit took) and its warning above 1 %; returns the metrics.unseen.SelfCheck, None when not measured."""
+    from tetweave_codec.metrics.unseen import self_check
+
+    check = self_check(result.vertices, result.faces)
+    if check is not None:
+        click.echo(check.line())
+        warning = check.warning(result.stats.get("surface"))
+        if warning:
+            click.echo(warning)
+    return check
 
 
 def _context_line(result, input_faces: int) -> str:

@@ -69,8 +69,19 @@ QUALITY_COLUMNS = [
     "n_vertices",
     "n_faces",
 ]
-# target: what the distances are measured against, "all" (the input's faces) or "visible" (`bench_target`)
-COLUMNS = ID_COLUMNS + PARAM_COLUMNS + SIZE_COLUMNS + FIDELITY_COLUMNS + QUALITY_COLUMNS + ["target", "error"]
+# unseen_area_pct (tetweave rows): % of the decoded area no outside view sees, the encode summary's self-check
+# (metrics.unseen); target: what the distances are measured against, "all" (the input's faces) or "visible"
+# (`bench_target`)
+COLUMNS = [
+    *ID_COLUMNS,
+    *PARAM_COLUMNS,
+    *SIZE_COLUMNS,
+    *FIDELITY_COLUMNS,
+    *QUALITY_COLUMNS,
+    "unseen_area_pct",
+    "target",
+    "error",
+]
 
 INPUT_FAMILY = "input"
 # How the classical settings are chosen (`tetweave bench --sweep`): every one, or those around the tetweave points.
@@ -259,7 +270,24 @@ def run_method(
     two None on failure."""
     row, data = encode_method(name, method, vertices, faces)
     decoded = None if data is None else measure_method(row, method, data, reference, options)
+    if decoded is not None and method.family == TETWEAVE:
+        _self_check(row, *decoded)
     return row, decoded, (None if decoded is None else data)
+
+
+def _self_check(row: dict, vertices: np.ndarray, faces: np.ndarray) -> None:
+    """The encode summary's self-check of a decoded tetweave mesh into `row`: unseen_area_pct (metrics.unseen;
+    left empty when not measured), its time added to metrics_s."""
+    from tetweave_codec.metrics.unseen import self_check
+
+    try:
+        check = self_check(vertices, faces)
+    except Exception as exc:  # one failure must not stop the batch; it is reported in the row
+        row["error"] = _error_text(exc)
+        return
+    if check is not None:
+        row["unseen_area_pct"] = 100.0 * check.share
+        row["metrics_s"] = (row.get("metrics_s") or 0.0) + check.seconds
 
 
 def say_row(say: ProgressFn, name: str, label: str, row: dict) -> None:

@@ -307,6 +307,7 @@ SUMMARY_COLUMNS = [
     ("2-manifold", "two_manifold"),
     ("V", "n_vertices"),
     ("F", "n_faces"),
+    ("unseen %", "unseen_area_pct"),
     ("enc s", "encode_s"),
     ("dec s", "decode_s"),
 ]
@@ -351,8 +352,10 @@ area-weighted samples). HD: Hausdorff distance (samples and vertices). NC: norma
 at distance τ. ECD / EF1: edge Chamfer distance / edge F1 (crease samples, paper Appendix C). IN>5°: % samples
 whose normal is off by more than 5°. AR>4 / RR>4: % triangles with aspect ratio (longest edge / shortest
 altitude) / radius ratio (circumradius / inradius) above 4. SA<10°: % triangles with an angle below 10°. SI: %
-self-intersecting faces. Exact definitions: `tetweave_codec/metrics/`. The input row gives the raw size
-(float32 xyz + uint32 indices) and the input's own triangle quality. bits/vertex: 8 × bytes / input vertices.
+self-intersecting faces. unseen % (tetweave rows): % of the decoded area no outside view sees (the encode
+summary's self-check; above 1 % membranes or hidden parts were kept inside the solid). Exact definitions:
+`tetweave_codec/metrics/`. The input row gives the raw size (float32 xyz + uint32 indices) and the input's own
+triangle quality. bits/vertex: 8 × bytes / input vertices.
 Times are wall-clock seconds on the machine that ran the benchmark."""
 
 

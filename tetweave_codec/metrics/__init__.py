@@ -9,6 +9,8 @@
 * `intersections`: self-intersecting faces.
 * `summary`: all of the above as one row (`mesh_report`, `evaluate`).
 * `rate_distortion`: Pareto fronts and sizes at a matched error (the benchmark's verdict).
+* `unseen`: the share of a mesh's area no outside view sees (`unseen_area_share`), the encoder's self-check of its
+  decoded mesh (`self_check`; renders through fit.visible, torch at call time).
 
 Surface samples and face normals come from `tetweave_codec.geometry.triangles`. `chamfer_distance` and `topology`
 are also importable from the package itself (the encoder's summary uses the first).

@@ -21,7 +21,21 @@ from tetweave_codec.runner.manifest import FAILED, OK, SKIPPED, Manifest, canoni
 from tetweave_codec.runner.work import Task
 
 # Result fields that reach the record unchanged (the rest, e.g. the output bytes, stay with the driver).
-_RESULT_FIELDS = ("bytes", "points", "chamfer", "draco_bytes", "decimate_draco_bytes", "seconds", "error", "attempts")
+_RESULT_FIELDS = (
+    "bytes",
+    "points",
+    "chamfer",
+    "draco_bytes",
+    "decimate_draco_bytes",
+    "unseen_area_share",
+    "seconds",
+    "error",
+    "attempts",
+)
+# Measured fields a skipped file's record keeps from its last run.
+_KEPT_FIELDS = ("bytes", "points", "chamfer", "draco_bytes", "decimate_draco_bytes", "unseen_area_share")
+# Files the batch summary names when their decoded area no outside view sees is above the warning's share.
+UNSEEN_NAMES = 5
 
 
 @dataclass
@@ -105,7 +119,7 @@ def run_batch(
             output = Path(task.output)
             before = None if force or manifest is None else manifest.done_before(task.key, sha, task.options, output)
             if before is not None:
-                kept = {k: before.get(k) for k in ("bytes", "points", "chamfer", "draco_bytes", "decimate_draco_bytes")}
+                kept = {k: before.get(k) for k in _KEPT_FIELDS}
                 emit(new_record(**base, **kept, status=SKIPPED, seconds=0.0, attempts=0))
                 continue
             facts[task.key] = base
@@ -139,7 +153,7 @@ def _size(n: float) -> str:
 
 def summary_lines(records: Sequence[dict], seconds: float) -> list[str]:
     """The end-of-batch summary: files by status, bytes in -> out and ratio (ok and skipped files), median
-    Chamfer distance, time and files per hour."""
+    Chamfer distance, time and files per hour, and a warning naming the files whose self-check warns."""
     by = {s: [r for r in records if r["status"] == s] for s in (OK, SKIPPED, FAILED)}
     done = by[OK] + by[SKIPPED]
     lines = [
@@ -154,4 +168,22 @@ def summary_lines(records: Sequence[dict], seconds: float) -> list[str]:
     chamfers = [r["chamfer"] for r in done if isinstance(r.get("chamfer"), (int, float))]
     if chamfers:
         lines.append(f"median Chamfer distance {statistics.median(chamfers):.3g} over {len(chamfers)} files")
+    unseen = [r for r in done if isinstance(r.get("unseen_area_share"), (int, float))]
+    if unseen:  # encode batches only: a decode imports no metrics (scipy)
+        lines += _unseen_lines(unseen)
     return lines
+
+
+def _unseen_lines(records: Sequence[dict]) -> list[str]:
+    """A warning naming the files whose decoded area no outside view sees is above metrics.unseen.WARN_SHARE
+    (the encode summary's self-check), [] when none."""
+    from tetweave_codec.metrics.unseen import WARN_SHARE
+
+    flagged = sorted(r["output"] for r in records if r["unseen_area_share"] > WARN_SHARE)
+    if not flagged:
+        return []
+    names = ", ".join(flagged[:UNSEEN_NAMES]) + (", ..." if len(flagged) > UNSEEN_NAMES else "")
+    return [
+        f"warning: {len(flagged)} of {len(records)} files keep over {100 * WARN_SHARE:.0f} % of their decoded area "
+        f"where no outside view sees it (unseen_area_share in the manifest; try --surface visible): {names}"
+    ]

@@ -5,7 +5,10 @@ input across runs), ``sha256`` of the input's bytes, ``options`` (everything tha
 ``status`` (``ok`` / ``failed`` / ``skipped``), ``input_bytes``, ``bytes`` (output size), ``points`` (points
 stored), ``chamfer`` (decoded mesh to input, normalized frame; null when not measured), ``draco_bytes`` and
 ``decimate_draco_bytes`` (plain Draco and fast-simplification + Draco of the input at that Chamfer distance, the
-encoder summary's context, `bench.anchor.classical_context`; null where no setting brackets it), ``seconds`` (the file's
+encoder summary's context, `bench.anchor.classical_context`; null where no setting brackets it),
+``unseen_area_share`` (encode: the share in [0, 1] of the decoded mesh's area that no outside view sees, the
+summary's self-check, `metrics.unseen`: above 0.01 membranes or hidden parts were kept inside the solid; null when
+not measured or for a decode), ``seconds`` (the file's
 wall time in its worker), ``error`` (the one-line message when failed), ``attempts`` (0: not run, i.e. skipped
 or unreadable; 1; 2 after a local worker died; Ray retries a dead worker itself and reports 1), ``time`` (UTC,
 when recorded).
@@ -38,6 +41,7 @@ RECORD_FIELDS = (
     "chamfer",
     "draco_bytes",
     "decimate_draco_bytes",
+    "unseen_area_share",
     "seconds",
     "error",
     "attempts",

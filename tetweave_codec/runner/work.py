@@ -56,7 +56,9 @@ def encode_file(task: Task) -> dict:
 
     Returns {"status": "ok", "data": .tw bytes, "bytes", "points" (stored), "points_target" (grid points of the
     fit), "chamfer", "draco_bytes", "decimate_draco_bytes" (the summary's classical context:
-    `bench.anchor.classical_context`), "device", "seconds", "mesh_sha256" (`mesh_sha256` of the loaded mesh)} or a
+    `bench.anchor.classical_context`), "unseen_area_share" (the share of the decoded area no outside view sees,
+    `metrics.unseen.self_check`; None when not measured, as with options.measure off), "device", "seconds",
+    "mesh_sha256" (`mesh_sha256` of the loaded mesh)} or a
     failed result with the one-line error (and mesh_sha256 when the mesh loaded). Same task, same bytes, in any
     process.
     """
@@ -76,6 +78,7 @@ def encode_file(task: Task) -> dict:
             torch.set_num_threads(options.threads)
         result = encode(vertices, faces, options=options)
         context = _classical_record(result)
+        unseen = _unseen_share(result) if options.measure else None
     except Exception as exc:  # bad input, unreachable target, a bug: a failed record, never a stopped batch
         return {**failed(exc, t0), **mesh_key}
     st = result.stats
@@ -87,6 +90,7 @@ def encode_file(task: Task) -> dict:
         "points_target": st["points_target"],
         "chamfer": st["chamfer"],
         **context,
+        "unseen_area_share": unseen,
         "device": st["device"],
         "seconds": time.perf_counter() - t0,
         **mesh_key,
@@ -100,6 +104,15 @@ def _classical_record(result) -> dict:
 
     context = encode_context(result)
     return context["record"] if context else {"draco_bytes": None, "decimate_draco_bytes": None}
+
+
+def _unseen_share(result) -> float | None:
+    """The encode summary's self-check for a manifest record: the share of the decoded area no outside view sees
+    (metrics.unseen), None when not measured."""
+    from tetweave_codec.metrics.unseen import self_check
+
+    check = self_check(result.vertices, result.faces)
+    return None if check is None else check.share
 
 
 def decode_file(task: Task) -> dict:
