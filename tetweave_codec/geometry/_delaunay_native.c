@@ -246,7 +246,7 @@ static int grow(void **p, int64_t *cap, int64_t need, size_t item) {
     return OK;
 }
 
-static int new_tet(DT *dt, int32_t *out) {
+static inline int new_tet(DT *dt, int32_t *out) {
     if (dt->nfree) {
         *out = dt->free_list[--dt->nfree];
         return OK;
@@ -575,7 +575,7 @@ static uint64_t splitmix64(uint64_t z) {
     return z ^ (z >> 31);
 }
 
-#define HILBERT_BITS 10
+#define HILBERT_BITS 10 /* at most: 8 cells per point are enough (fewer bits, less work) */
 #define BRIO_LEVELS 15
 
 /* ----------------------------------------------------------------------------------------------------------- */
@@ -726,14 +726,17 @@ static int run(const int64_t *cells, int64_t n_in, Result *res) {
     order = malloc((size_t)m * sizeof(uint64_t));
     otmp = malloc((size_t)m * sizeof(uint64_t));
     if (!order || !otmp) goto nomem;
+    int hbits = bit_length((uint64_t)m) / 3 + 1;
+    if (hbits > HILBERT_BITS) hbits = HILBERT_BITS;
+    if (hbits < 2) hbits = 2;
     for (int64_t r = 0; r < m; r++) {
         uint32_t h[3];
-        for (int a = 0; a < 3; a++) h[a] = (uint32_t)(((int64_t)dt.x[3 * r + a] << HILBERT_BITS) / span);
+        for (int a = 0; a < 3; a++) h[a] = (uint32_t)(((int64_t)dt.x[3 * r + a] << hbits) / span);
         uint64_t z = splitmix64((uint64_t)r);
         int tz = 0;
         while (tz < BRIO_LEVELS && !((z >> tz) & 1)) tz++;
         uint64_t round = (uint64_t)(BRIO_LEVELS - tz);
-        order[r] = (round << 56) | (hilbert3(h[0], h[1], h[2], HILBERT_BITS) << 26) | (uint64_t)r;
+        order[r] = (round << 56) | (hilbert3(h[0], h[1], h[2], hbits) << 26) | (uint64_t)r;
     }
     radix_sort(order, otmp, m, 60);
     free(otmp);
