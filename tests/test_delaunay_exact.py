@@ -352,6 +352,26 @@ def test_many_coplanar_and_coincident_points_are_fast_and_empty():
     assert time.perf_counter() - start < 5.0
 
 
+def _skew_lines(n: int, step: int = 1000) -> np.ndarray:
+    t = np.arange(n, dtype=np.int64)
+    a = np.stack([t * step, np.zeros(n, np.int64), np.zeros(n, np.int64)], 1)
+    b = np.stack([np.full(n, n * step // 2), t * step + n * step // 2, np.full(n, n * step)], 1)
+    return np.vstack([a, b])
+
+
+def test_quadratic_tetrahedralizations_are_made_or_refused_in_bounded_memory():
+    """Points on two skew lines: (n - 1)^2 tets. Small ones come out (checked); past max(64 N + 4096, 2^22) tets a
+    MemoryError, after bounded work."""
+    cells = _skew_lines(40)
+    tz = tetrahedralize_cells(cells)
+    assert len(tz.tets) == 39 * 39
+    assert check(cells, tz.tets, tz.hull_faces) == []
+    start = time.perf_counter()
+    with pytest.raises(MemoryError, match="skew lines"):
+        tetrahedralize_cells(_skew_lines(3000))
+    assert time.perf_counter() - start < 10.0
+
+
 @pytest.mark.parametrize(
     "cells",
     [

@@ -2,9 +2,10 @@
  *
  *   tetrahedralize(cells) -> (tets, hull_faces) as bytearrays of int64 ((T, 4) and (H, 3), C order)
  *       cells: a C-contiguous int64 buffer of N * 3 coordinates. Raises ValueError (coordinates outside
- *       [0, 2^23), N > 2^26, wrong buffer), MemoryError (allocation failure, or more than 64 N + 4096 tets: a
- *       degenerate set whose tetrahedralization grows quadratically), RuntimeError starting with "flat tet" (a new
- *       tet would have no volume: an internal inconsistency, never expected) or "walk" (point location did not end).
+ *       [0, 2^23), N > 2^26, wrong buffer), MemoryError (allocation failure, or more than max(64 N + 4096, 2^22)
+ *       tets: a degenerate set whose tetrahedralization grows quadratically, e.g. points on two skew lines),
+ *       RuntimeError starting with "flat tet" (a tet with no volume: an internal inconsistency, never expected) or
+ *       "walk" (point location did not end).
  *
  * DEFINITION (the specification; geometry/delaunay.py's docstring states the same in the same words)
  *
@@ -95,6 +96,9 @@
 /* tets (ghosts included) allowed per distinct point, beyond a constant: ~7 for ordinary sets */
 #define TETS_PER_POINT 64
 #define TETS_EXTRA 4096
+/* ... but never fewer than this many (128 MB of records): small sets whose tetrahedralization is quadratic, such
+ * as points on two skew lines, still come out */
+#define TETS_FLOOR (1 << 22)
 
 typedef __int128 i128;
 
@@ -780,6 +784,7 @@ static int run(const int64_t *cells, int64_t n_in, Result *res) {
         if (pick[3] < 0) goto done; /* coplanar */
     }
     dt.max_tets = TETS_PER_POINT * m + TETS_EXTRA;
+    if (dt.max_tets < TETS_FLOOR) dt.max_tets = TETS_FLOOR;
     if (dt.max_tets > (1 << 29)) dt.max_tets = 1 << 29; /* tet * 4 + face fits int32 */
     dt.rng = 0x2545F4914F6CDD1Dull;
     dt.stamp = 1;
@@ -935,9 +940,9 @@ static PyObject *py_tetrahedralize(PyObject *self, PyObject *args) {
             PyErr_NoMemory();
         else if (err == ERR_TOO_MANY)
             PyErr_Format(PyExc_MemoryError,
-                         "the Delaunay tetrahedralization of %lld points needs more than %d tets per point (a "
-                         "degenerate point set)",
-                         (long long)n, TETS_PER_POINT);
+                         "the Delaunay tetrahedralization of %lld points needs more than max(%d per point, %d) tets "
+                         "(a degenerate point set, e.g. points on two skew lines)",
+                         (long long)n, TETS_PER_POINT, TETS_FLOOR);
         else if (err == ERR_FLAT)
             PyErr_SetString(PyExc_RuntimeError, "flat tet: a new tet has no volume (inconsistent predicates)");
         else
