@@ -24,7 +24,7 @@
  *    orient3d(a, b, c, d) = sign det[b - a, c - a, d - a] (rows), no perturbation. A tet (a, b, c, d) is
  *    positively oriented when orient3d(a, b, c, d) > 0.
  *    Conflict of a point e with a positively oriented tet (a, b, c, d) (e inside its perturbed circumsphere):
- *    with O = orient3d(a, b, c, d) and the lifts h,
+ *    with O = det[b - a, c - a, d - a] (> 0) and the lifts h,
  *        Phi = O h(e) - o_a h(a) - o_b h(b) - o_c h(c) - o_d h(d),
  *        o_a = det3(e, b, c, d), o_b = det3(a, e, c, d), o_c = det3(a, b, e, d), o_d = det3(a, b, c, e),
  *    det3(.) being the determinant orient3d takes the sign of (o_v / O are e's barycentric coordinates, so
@@ -61,10 +61,11 @@
  *  - differences: |d| <= 2^23 - 1 < 2^23;
  *  - products of two differences < 2^46; 2x2 minors |d1 d2 - d3 d4| < 2^47 (int64; also exact in binary64,
  *    whose integers are exact up to 2^53);
- *  - orient3d: 3 products of a difference and a 2x2 minor: |det| < 3 * 2^23 * 2^47 < 2^72 (int128);
+ *  - orient3d and every 3x3 determinant of differences: 3 products of a difference and a 2x2 minor,
+ *    |det| < 3 * 2^23 * 2^47 = 3 * 2^70 < 2^72 (int128);
  *  - lifts |A|^2 = dx^2 + dy^2 + dz^2 < 3 * 2^46 < 2^48 (int64, exact in binary64);
  *  - insphere W: 4 products of a lift and a 3x3 determinant of differences:
- *    |W| < 4 * 3 * 2^46 * 3 * 2^69 = 36 * 2^115 < 2^121 < 2^127 (int128);
+ *    |W| < 4 * 3 * 2^46 * 3 * 2^70 = 36 * 2^116 < 2^122 < 2^127 (int128; each product < 9 * 2^116 < 2^120);
  *  - the 2-D conflict W2 = |A|^2 det2[B, C] - |B|^2 det2[A, C] + |C|^2 det2[A, B]: |W2| < 3 * 3 * 2^46 * 2^47
  *    < 2^97 (int128); the hull plane normal (b - a) x (c - a): components < 2^47 (int64).
  *
@@ -72,12 +73,14 @@
  * radix sort of the points by (x, y, z); the points are translated and divided by the largest power of two that
  * divides every coordinate difference (every predicate is a homogeneous polynomial of differences and the ranks
  * do not change, so no sign changes; grid-quantized points then have small coordinates and most predicates are
- * exact in binary64). Insertion order: BRIO (rounds drawn from a fixed hash of the rank) with a 3-D Hilbert
- * order inside each round. Bowyer-Watson: the first tet from 4 affinely independent points plus 4 ghost tets;
+ * exact in binary64), and renumbered in insertion order (their ranks kept for the perturbation). Insertion order:
+ * BRIO (rounds drawn from a fixed hash of the rank) with a 3-D Hilbert order inside each round. Bowyer-Watson: the first tet from 4 affinely independent points plus 4 ghost tets;
  * each point is located by a visibility walk from the last created tet (faces tried in a fixed pseudo-random
  * order), the cavity of conflicting tets grown by breadth-first search, its boundary starred from the point.
- * Predicates: binary64 first with a forward error bound on the permanent (Shewchuk-style semi-static filter;
- * exact as it stands when the permanent is below 2^53), 128-bit integers when the filter cannot decide.
+ * Predicates: binary64 first, decided by a static error bound from the largest coordinate difference S (exact
+ * as computed when the largest possible permanent, 6 S^3 for orient3d and 72 S^5 for insphere, is below 2^53:
+ * grids of up to 16 bits for orient3d, 9 bits for insphere), then by a bound on the computed permanent
+ * (Shewchuk-style semi-static filter), then 128-bit integers.
  * Flat arrays: tet vertices int32 x 4, neighbours int32 x 4 encoded as tet * 4 + face, a free list of deleted tets.
  * The GIL is released during the computation.
  */

@@ -76,10 +76,11 @@ Input: N integer points p_i = (x_i, y_i, z_i), i = 0..N-1, with 0 <= x_i, y_i, z
    all distinct points coplanar: (0, 4) and (0, 3), no error.
 
 Exactness: coordinates in [0, 2^23 - 1] give differences < 2^23, 2x2 minors < 2^47 (int64, exact in binary64),
-orient3d determinants < 3 * 2^23 * 2^47 < 2^72, lifts |d|^2 < 3 * 2^46 < 2^48, W < 4 * 3 * 2^46 * 3 * 2^69 < 2^121
-and the 2-D conflict value < 3 * 3 * 2^46 * 2^47 < 2^97: 128-bit integers (and binary64 behind a forward error
-bound) evaluate every predicate exactly. Algorithm (speed only: any correct implementation gives the same
-arrays): Bowyer-Watson in BRIO / Hilbert order with a visibility walk, filtered predicates; see the C file.
+orient3d and every 3x3 determinant of differences < 3 * 2^23 * 2^47 < 2^72, lifts |d|^2 < 3 * 2^46 < 2^48,
+W < 4 * 3 * 2^46 * 3 * 2^70 = 36 * 2^116 < 2^122 and the 2-D conflict value < 3 * 3 * 2^46 * 2^47 < 2^97:
+128-bit integers (and binary64 behind forward error bounds) evaluate every predicate exactly. Algorithm (speed
+only: any correct implementation gives the same arrays): Bowyer-Watson in BRIO / Hilbert order with a visibility
+walk, filtered predicates; see the C file.
 
 Other backends
 --------------
