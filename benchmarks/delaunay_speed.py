@@ -10,11 +10,13 @@ Per input, `geometry.delaunay.tetrahedralize(points, backend)` (the API call the
 snapping the points to its integer lattice) is run `--repeats` times per backend, alternating, after one warm-up;
 the median of `--clock` (cpu: this process's CPU time, robust on a loaded machine; wall: wall clock) is printed,
 with the ratio TetGen / exact, and Qhull's time once (`--no-qhull` skips it). The tet counts of both are printed
-too: they differ where points are cospherical (each backend breaks ties its own way).
+too: they differ where points are cospherical (each backend breaks ties its own way). `--decode` also times the
+API decode of each real file (`decoder.decode_detailed`, default level) with each backend.
 
     python -m tetweave_codec.benchmarks.delaunay_speed
     python -m tetweave_codec.benchmarks.delaunay_speed --sizes 5k,40k --repeats 9 --clock wall
     python -m tetweave_codec.benchmarks.delaunay_speed --only spot,igea --no-synthetic --no-qhull
+    python -m tetweave_codec.benchmarks.delaunay_speed --no-synthetic --no-qhull --decode
 """
 
 from __future__ import annotations
@@ -40,8 +42,9 @@ def parse_sizes(text: str) -> list[int]:
     return out
 
 
-def real_inputs(root: Path, sizes: list[int], only: str) -> list[tuple[str, np.ndarray]]:
-    """(name, points (N, 3) float64) of the v2 files under `root` at `sizes` (MESH/size-BYTES-*.tw, or *.tw)."""
+def real_inputs(root: Path, sizes: list[int], only: str) -> list[tuple[str, np.ndarray, bytes]]:
+    """(name, points (N, 3) float64, file bytes) of the v2 files under `root` at `sizes` (MESH/size-BYTES-*.tw,
+    or *.tw)."""
     from tetweave_codec.formats.tw import unpack
 
     keep = set(only.split(",")) if only else None
@@ -54,18 +57,18 @@ def real_inputs(root: Path, sizes: list[int], only: str) -> list[tuple[str, np.n
         tw = unpack(p.read_bytes())
         if getattr(tw, "cells", None) is None:
             continue  # a version-1 file: no grid
-        out.append((f"{mesh} {p.stem.split('-')[1]} B", np.ascontiguousarray(tw.points)))
+        out.append((f"{mesh} {p.stem.split('-')[1]} B", np.ascontiguousarray(tw.points), p.read_bytes()))
     return out
 
 
-def synthetic_inputs(n: int, seed: int = 0) -> list[tuple[str, np.ndarray]]:
+def synthetic_inputs(n: int, seed: int = 0) -> list[tuple[str, np.ndarray, None]]:
     rng = np.random.default_rng(seed)
     v = rng.normal(size=(n, 3))
     v /= np.linalg.norm(v, axis=1, keepdims=True)
     shell = v * rng.uniform(0.9, 0.92, (n, 1))
     cube = rng.uniform(-1, 1, (n, 3))
     as16 = [np.unique(x.astype(np.float16).astype(np.float64), axis=0) for x in (shell, cube)]
-    return [(f"shell {n // 1024}K", as16[0]), (f"cube {n // 1024}K", as16[1])]
+    return [(f"shell {n // 1024}K", as16[0], None), (f"cube {n // 1024}K", as16[1], None)]
 
 
 def time_backends(points: np.ndarray, backends: list[str], repeats: int, clock) -> dict[str, tuple[float, int]]:
@@ -82,6 +85,26 @@ def time_backends(points: np.ndarray, backends: list[str], repeats: int, clock) 
     return {b: (statistics.median(samples[b]), counts[b]) for b in backends}
 
 
+def time_decode(data: bytes, backends: list[str], repeats: int, clock) -> dict[str, float]:
+    """Median seconds of `decoder.decode_detailed(data, backend)` per backend (a backend other than the file's gives
+    another mesh where points are cospherical: the same work)."""
+    import warnings
+
+    from tetweave_codec.decoder import decode_detailed
+
+    samples: dict[str, list[float]] = {b: [] for b in backends}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        for b in backends:
+            decode_detailed(data, b)
+        for _ in range(repeats):
+            for b in backends:
+                t0 = clock()
+                decode_detailed(data, b)
+                samples[b].append(clock() - t0)
+    return {b: statistics.median(samples[b]) for b in backends}
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--files", type=Path, default=COMMITTED, help="folder of v2 files (default: the committed ones)")
@@ -92,6 +115,7 @@ def main(argv=None) -> int:
     ap.add_argument("--no-synthetic", action="store_true")
     ap.add_argument("--no-qhull", action="store_true")
     ap.add_argument("--clock", choices=["cpu", "wall"], default="cpu")
+    ap.add_argument("--decode", action="store_true", help="also time the API decode of each file with each backend")
     args = ap.parse_args(argv)
     if args.repeats < 1 or args.points < 4:
         ap.error("--repeats must be >= 1 and --points >= 4")
@@ -111,7 +135,8 @@ def main(argv=None) -> int:
     cols = ("exact ms", "TetGen ms", "ratio", "Qhull ms")
     print(f"{'input':<22} {'points':>7} {cols[0]:>9} {cols[1]:>10} {cols[2]:>6} {cols[3]:>9}  tets exact / TetGen")
     ratios = []
-    for name, pts in inputs:
+    decodes = []
+    for name, pts, data in inputs:
         res = time_backends(pts, backends, args.repeats, clock)
         ex_t, ex_n = res["exact"]
         tg = f"{1e3 * res['tetgen'][0]:10.1f}" if have_tetgen else f"{'-':>10}"
@@ -126,8 +151,16 @@ def main(argv=None) -> int:
             qh = f"{1e3 * (clock() - t0):.0f}"
         counts = f"{ex_n} / {res['tetgen'][1]}" if have_tetgen else f"{ex_n}"
         print(f"{name:<22} {len(pts):>7} {1e3 * ex_t:9.1f} {tg} {ratio:6.2f} {qh:>9}  {counts}")
+        if args.decode and data is not None and have_tetgen:
+            decodes.append((name, time_decode(data, backends, args.repeats, clock)))
     if have_tetgen:
         print(f"TetGen / exact: median {statistics.median(ratios):.2f} (range {min(ratios):.2f}-{max(ratios):.2f})")
+    if decodes:
+        print("API decode (decoder.decode_detailed, default level) with each backend:")
+        for name, res in decodes:
+            ex, tg = res["exact"], res["tetgen"]
+            faster = 100 * (1 - ex / tg)
+            print(f"{name:<22} exact {1e3 * ex:7.1f} ms  TetGen {1e3 * tg:7.1f} ms  {faster:5.1f} % faster")
     return 0
 
 
