@@ -71,6 +71,12 @@ def test_random_points_valid_and_fill_the_hull(backend):
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_empty_circumspheres(backend):
     pts = np.random.default_rng(1).normal(size=(150, 3))
+    if backend == "exact":  # it triangulates the points snapped to its lattice: check those
+        from tetweave_codec.geometry.delaunay import MAX_BITS, snap_to_lattice
+
+        bound = 4.0  # the power of two above these points' largest magnitude (snap_to_lattice)
+        assert 2.0 < np.abs(pts).max() <= bound
+        pts = snap_to_lattice(pts) * (2 * bound / 2**MAX_BITS) - bound
     tets = delaunay(pts, backend)
     a = pts[tets[:, 0]]
     m = np.stack([pts[tets[:, k]] - a for k in (1, 2, 3)], 1)  # (T, 3, 3)
@@ -194,14 +200,14 @@ def test_input_validation():
         resolve_backend("cgal")
 
 
-def test_qhull_fallback_without_tetgenpy(monkeypatch):
+def test_exact_and_qhull_without_tetgenpy(monkeypatch):
     monkeypatch.setitem(sys.modules, "tetgenpy", None)  # makes `import tetgenpy` raise ImportError
-    assert dl.available_backends() == ("qhull",)
-    assert resolve_backend("auto") == "qhull"
+    assert dl.available_backends() == ("exact", "qhull")
+    assert resolve_backend("auto") == "exact"
     with pytest.raises(ImportError):
         resolve_backend("tetgen")
     pts = np.random.default_rng(9).uniform(size=(50, 3))
-    assert tetrahedralize(pts).backend == "qhull"
+    assert tetrahedralize(pts).backend == "exact" and tetrahedralize(pts, "qhull").backend == "qhull"
 
 
 # -----------------------------------------------------------------------------------------------------------

@@ -300,9 +300,12 @@ def test_v2_cell_centres_snap_exactly(bits):
     np.testing.assert_array_equal(a.hull_faces, b.hull_faces)
 
 
-def test_snap_clamps_outside_the_grid_cube():
-    pts = np.array([[-5.0, 0.0, 5.0], [-1.2, 1.2, 0.0]])
-    np.testing.assert_array_equal(snap_to_lattice(pts), [[0, 1 << 22, TOP], [0, TOP, 1 << 22]])
+def test_snap_widens_its_cube_for_points_beyond_the_grid():
+    inside = np.array([[-1.2, 1.2, 0.0]])
+    np.testing.assert_array_equal(snap_to_lattice(inside), [[0, TOP, 1 << 22]])
+    pts = np.array([[-5.0, 0.0, 5.0], [-1.2, 1.2, 0.0]])  # beyond 1.2: the lattice spans [-8, 8] instead
+    np.testing.assert_array_equal(snap_to_lattice(pts), [[(3 << 19), 1 << 22, (13 << 19)], [3565158, 4823450, 1 << 22]])
+    assert len(np.unique(snap_to_lattice(np.array([[9.0, 0, 0], [10.0, 0, 0]])), axis=0)) == 2  # nothing clamped
 
 
 def test_backends_and_auto():

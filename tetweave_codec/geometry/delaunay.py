@@ -249,7 +249,9 @@ def snap_to_lattice(points: np.ndarray) -> np.ndarray:
     nearest rather than down: a v2 file's cell centre at b bits, ``((2k + 1 - 2^b) B) / 2^b``, sits exactly on the
     lattice value ``k * 2^(23 - b) + 2^(22 - b)``, and float64 error (~1e-9 here) could put it below that integer;
     so every position grid of 6..16 bits maps to the lattice exactly (tests/test_delaunay_exact.py), its tets are
-    those of `tetrahedralize_cells(cells)`, and the map is monotone (lexicographic ranks are kept).
+    those of `tetrahedralize_cells(cells)`, and the map is monotone (lexicographic ranks are kept). Points beyond
+    [-B, B] (never the fit's, which it clamps there) take B = the power of two at or above their largest
+    magnitude instead, so that no point is clamped onto another.
     """
     from tetweave_codec.formats.quantize import GRID_BOUND
 
@@ -258,7 +260,11 @@ def snap_to_lattice(points: np.ndarray) -> np.ndarray:
         raise ValueError(f"points must have shape (N, 3), got {pts.shape}")
     if not np.isfinite(pts).all():
         raise ValueError("points must be finite")
-    t = (pts + GRID_BOUND) / (2.0 * GRID_BOUND) * float(1 << MAX_BITS)
+    bound = GRID_BOUND
+    largest = float(np.abs(pts).max()) if pts.size else 0.0
+    if largest > GRID_BOUND:
+        bound = float(np.ldexp(1.0, int(np.frexp(largest)[1])))  # 2^e > largest (frexp: largest < 2^e)
+    t = (pts + bound) / (2.0 * bound) * float(1 << MAX_BITS)
     return np.clip(np.floor(t + 0.5), 0, (1 << MAX_BITS) - 1).astype(np.int64)
 
 
