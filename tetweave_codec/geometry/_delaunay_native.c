@@ -144,20 +144,29 @@ static void filter_init(Filter *fl, double span) {
     fl->insphere = i < EXACT_DOUBLE ? -1.0 : INSPHERE_BOUND * i;
 }
 
-/* sign det[b - a, c - a, d - a] */
-static inline int orient3d(const Filter *fl, const double *a, const double *b, const double *c, const double *d) {
+/* orient3d past the static filter: the semi-static filter on the computed permanent, then exact */
+static __attribute__((noinline)) int orient_slow(const double *a, const double *b, const double *c, const double *d) {
     double bx = b[0] - a[0], by = b[1] - a[1], bz = b[2] - a[2];
     double cx = c[0] - a[0], cy = c[1] - a[1], cz = c[2] - a[2];
     double dx = d[0] - a[0], dy = d[1] - a[1], dz = d[2] - a[2];
     double t1 = bx * (cy * dz - cz * dy), t2 = by * (cz * dx - cx * dz), t3 = bz * (cx * dy - cy * dx);
     double det = t1 + t2 + t3;
-    if (fabs(det) > fl->orient) return (det > 0) - (det < 0);
     double perm = fabs(t1) + fabs(t2) + fabs(t3);
     double bound = ORIENT_BOUND * perm;
     if (det > bound) return 1;
     if (-det > bound) return -1;
     if (perm < EXACT_DOUBLE) return (det > 0) - (det < 0);
     return orient_exact(a, b, c, d);
+}
+
+/* sign det[b - a, c - a, d - a] */
+static inline int orient3d(const Filter *fl, const double *a, const double *b, const double *c, const double *d) {
+    double bx = b[0] - a[0], by = b[1] - a[1], bz = b[2] - a[2];
+    double cx = c[0] - a[0], cy = c[1] - a[1], cz = c[2] - a[2];
+    double dx = d[0] - a[0], dy = d[1] - a[1], dz = d[2] - a[2];
+    double det = bx * (cy * dz - cz * dy) + by * (cz * dx - cx * dz) + bz * (cx * dy - cy * dx);
+    if (fabs(det) > fl->orient) return (det > 0) - (det < 0);
+    return orient_slow(a, b, c, d);
 }
 
 static int insphere_exact(const double *a, const double *b, const double *c, const double *d, const double *e) {
@@ -177,10 +186,9 @@ static int insphere_exact(const double *a, const double *b, const double *c, con
     return (w > 0) - (w < 0);
 }
 
-/* sign of W (module docstring, rule 3): > 0 iff e is strictly inside the sphere through a, b, c, d (for a
- * positively oriented tet) */
-static inline int insphere_w(const Filter *fl, const double *a, const double *b, const double *c, const double *d,
-                             const double *e) {
+/* insphere past the static filter: the semi-static filter on the computed permanent, then exact */
+static __attribute__((noinline)) int insphere_slow(const double *a, const double *b, const double *c, const double *d,
+                                                   const double *e) {
     double ax = a[0] - e[0], ay = a[1] - e[1], az = a[2] - e[2];
     double bx = b[0] - e[0], by = b[1] - e[1], bz = b[2] - e[2];
     double cx = c[0] - e[0], cy = c[1] - e[1], cz = c[2] - e[2];
@@ -198,13 +206,33 @@ static inline int insphere_w(const Filter *fl, const double *a, const double *b,
     double la = ax * ax + ay * ay + az * az, lb = bx * bx + by * by + bz * bz;
     double lc = cx * cx + cy * cy + cz * cz, ld = dx * dx + dy * dy + dz * dz;
     double w = la * bcd - lb * acd + lc * abd - ld * abc;
-    if (fabs(w) > fl->insphere) return (w > 0) - (w < 0);
     double perm = la * pbcd + lb * pacd + lc * pabd + ld * pabc;
     double bound = INSPHERE_BOUND * perm;
     if (w > bound) return 1;
     if (-w > bound) return -1;
     if (perm < EXACT_DOUBLE) return (w > 0) - (w < 0);
     return insphere_exact(a, b, c, d, e);
+}
+
+/* sign of W (module docstring, rule 3): > 0 iff e is strictly inside the sphere through a, b, c, d (for a
+ * positively oriented tet) */
+static inline int insphere_w(const Filter *fl, const double *a, const double *b, const double *c, const double *d,
+                             const double *e) {
+    double ax = a[0] - e[0], ay = a[1] - e[1], az = a[2] - e[2];
+    double bx = b[0] - e[0], by = b[1] - e[1], bz = b[2] - e[2];
+    double cx = c[0] - e[0], cy = c[1] - e[1], cz = c[2] - e[2];
+    double dx = d[0] - e[0], dy = d[1] - e[1], dz = d[2] - e[2];
+    double ab = ax * by - bx * ay, ac = ax * cy - cx * ay, ad = ax * dy - dx * ay;
+    double bc = bx * cy - cx * by, bd = bx * dy - dx * by, cd = cx * dy - dx * cy;
+    double abc = az * bc - bz * ac + cz * ab;
+    double bcd = bz * cd - cz * bd + dz * bc;
+    double acd = az * cd - cz * ad + dz * ac;
+    double abd = az * bd - bz * ad + dz * ab;
+    double la = ax * ax + ay * ay + az * az, lb = bx * bx + by * by + bz * bz;
+    double lc = cx * cx + cy * cy + cz * cz, ld = dx * dx + dy * dy + dz * dz;
+    double w = la * bcd - lb * acd + lc * abd - ld * abc;
+    if (fabs(w) > fl->insphere) return (w > 0) - (w < 0);
+    return insphere_slow(a, b, c, d, e);
 }
 
 /* ----------------------------------------------------------------------------------------------------------- */
