@@ -242,7 +242,7 @@ def encode(
 
     Every encode checks its decoded mesh against something it did not fit to: the summary (and a batch's
     manifest, unseen_area_share) gives the share of the decoded area that no outside view sees (32 renders of the
-    decoded mesh, 0.2-1.2 s, under 2 % of a default encode) and warns above 1 %: membranes or hidden parts kept
+    decoded mesh, 0.1-1.2 s, under 2 % of a default encode) and warns above 1 %: membranes or hidden parts kept
     inside the solid.
     """
     from tetweave_codec.options import EncodeOptions
