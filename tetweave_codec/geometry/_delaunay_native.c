@@ -260,6 +260,8 @@ typedef struct {
     int64_t bnd_cap;
     HashSlot *hash;
     int64_t hcap;
+    int32_t *vloc; /* n + 1: a boundary vertex's local id during one insertion, else -1 */
+    int32_t *ltab; /* LOCAL_V x LOCAL_V: new tet face code by oriented local edge (a, b), else -1 */
     uint32_t stamp;
     uint64_t rng;
     int32_t last; /* a finite tet created by the last insertion */
@@ -454,6 +456,26 @@ static const int8_t OTHER[4][4][2] = {
     {{1, 2}, {0, 2}, {0, 1}, {-1, -1}},
 };
 
+/* The three slots other than f, ascending. */
+static const int8_t REST[4][3] = {{1, 2, 3}, {0, 2, 3}, {0, 1, 3}, {0, 1, 2}};
+
+/* EDGE[f][g]: in a new tet with q at slot f, face g (g != f) is (q, r[EDGE[f][g][0]], r[EDGE[f][g][1]]) in the
+ * cyclic order of the face oriented outward (HULL_FACE[g] rotated to start at f). The tet across that face is
+ * also new and sees the face oriented the other way: the same edge reversed. Tets (ghosts included) are
+ * oriented consistently, so matching (a, b) with (b, a) links the new tets. */
+static const int8_t EDGE[4][4][2] = {
+    {{-1, -1}, {2, 3}, {3, 1}, {1, 2}},
+    {{3, 2}, {-1, -1}, {0, 3}, {2, 0}},
+    {{1, 3}, {3, 0}, {-1, -1}, {0, 1}},
+    {{2, 1}, {0, 2}, {1, 0}, {-1, -1}},
+};
+
+/* Cavities with at most LOCAL_NB boundary faces link their new tets through an edge table on local vertex ids
+ * (the boundary is a triangulated sphere: nb = 2 V - 4 faces on V <= LOCAL_V vertices); larger ones through the
+ * hash. */
+#define LOCAL_V 64
+#define LOCAL_NB (2 * LOCAL_V - 4)
+
 /* Flags in a tet's record during one insertion: IN_CAVITY on v[0] (the tet is deleted at the end), TESTED_OUT on
  * v[1] (cleared at the end). Vertex ids are below 2^26 + 1. */
 #define IN_CAVITY 0x40000000
@@ -490,51 +512,97 @@ static int insert(DT *dt, int32_t q) {
             nb++;
         }
     }
-    /* edge table for linking the new tets to each other */
-    int64_t need = 16;
-    while (need < 4 * nb) need *= 2;
-    if (need > dt->hcap) {
-        free(dt->hash);
-        dt->hash = calloc((size_t)need, sizeof(HashSlot));
-        dt->hcap = dt->hash ? need : 0;
-        if (!dt->hash) return ERR_MEMORY;
-    }
-    const uint64_t hmask = (uint64_t)dt->hcap - 1;
-    const uint32_t hs = dt->stamp; /* never 0: stamps start at 1 */
     const int32_t inf = dt->n;
-    HashSlot *hash = dt->hash;
-    /* new tets: the cavity tet of each boundary face with the vertex opposite it replaced by q; the cavity tets
-     * stay intact until all are made (the free list holds only earlier insertions' tets) */
-    for (int64_t i = 0; i < nb; i++) {
-        int32_t ct = dt->bnd[2 * i], f = dt->bnd[2 * i + 1];
-        int32_t t;
-        if ((err = new_tet(dt, &t))) return err;
-        int32_t *r = TV(dt, t);
-        memcpy(r, TV(dt, ct), 4 * sizeof(int32_t));
-        r[0] &= ~IN_CAVITY;
-        r[f] = q;
-        int32_t out = TN(dt, ct, f);
-        TV(dt, out >> 2)[1] &= ~TESTED_OUT;
-        glue(dt, t, f, out);
-        if (r[0] != inf && r[1] != inf && r[2] != inf && r[3] != inf) dt->last = t;
-        for (int g = 0; g < 4; g++) {
-            if (g == f) continue;
-            /* face g holds q and the two vertices at the slots other than f and g */
-            uint32_t e0 = (uint32_t)r[OTHER[f][g][0]], e1 = (uint32_t)r[OTHER[f][g][1]];
-            uint32_t lo = e0 < e1 ? e0 : e1, hi = e0 ^ e1 ^ lo;
-            uint64_t key = ((uint64_t)lo << 32) | hi;
-            uint64_t h = (key * 0x9E3779B97F4A7C15ull) >> 32;
-            HashSlot *sl = hash + (h & hmask);
-            while (sl->stamp == hs && sl->key != key) sl = hash + (++h & hmask);
-            /* each key comes exactly twice: the first stores itself, the second links both (no branch on which
-             * one this is: the first writes its link into a dummy) */
-            int32_t partner = sl->stamp == hs ? sl->val : -1;
-            int32_t *back = partner >= 0 ? &TN(dt, partner >> 2, partner & 3) : &dt->dummy;
-            *back = t * 4 + g;
-            TN(dt, t, g) = partner;
-            sl->stamp = hs;
-            sl->key = key;
-            sl->val = t * 4 + g;
+    if (nb <= LOCAL_NB) {
+        /* new tets: the cavity tet of each boundary face with the vertex opposite it replaced by q; the cavity
+         * tets stay intact until all are made (the free list holds only earlier insertions' tets) */
+        int32_t *vloc = dt->vloc, *ltab = dt->ltab, vlist[LOCAL_V];
+        int nv = 0;
+        for (int64_t i = 0; i < nb; i++) {
+            int32_t ct = dt->bnd[2 * i], f = dt->bnd[2 * i + 1];
+            int32_t t;
+            if ((err = new_tet(dt, &t))) return err;
+            int32_t *r = TV(dt, t);
+            memcpy(r, TV(dt, ct), 4 * sizeof(int32_t));
+            r[0] &= ~IN_CAVITY;
+            r[f] = q;
+            int32_t out = TN(dt, ct, f);
+            TV(dt, out >> 2)[1] &= ~TESTED_OUT;
+            glue(dt, t, f, out);
+            if (r[0] != inf && r[1] != inf && r[2] != inf && r[3] != inf) dt->last = t;
+            int lid[4];
+            for (int k = 0; k < 3; k++) {
+                int s = REST[f][k];
+                int32_t id = vloc[r[s]];
+                if (id < 0) {
+                    if (nv == LOCAL_V) return ERR_FLAT; /* not a sphere: never expected */
+                    id = nv;
+                    vloc[r[s]] = id;
+                    vlist[nv++] = r[s];
+                }
+                lid[s] = id;
+            }
+            for (int k = 0; k < 3; k++) {
+                int g = REST[f][k];
+                int a = lid[EDGE[f][g][0]], b = lid[EDGE[f][g][1]];
+                int32_t *ba = ltab + b * LOCAL_V + a;
+                int32_t partner = *ba;
+                int32_t code = t * 4 + g;
+                /* each oriented edge comes once and its reverse once: the second links both and clears the
+                 * first's entry, so the table is empty again after the insertion */
+                *ba = -1;
+                if (partner >= 0) {
+                    TN(dt, partner >> 2, partner & 3) = code;
+                    TN(dt, t, g) = partner;
+                } else {
+                    ltab[a * LOCAL_V + b] = code;
+                }
+            }
+        }
+        for (int k = 0; k < nv; k++) vloc[vlist[k]] = -1;
+    } else {
+        /* a large cavity: the same through a hash table of the edges */
+        int64_t need = 16;
+        while (need < 4 * nb) need *= 2;
+        if (need > dt->hcap) {
+            free(dt->hash);
+            dt->hash = calloc((size_t)need, sizeof(HashSlot));
+            dt->hcap = dt->hash ? need : 0;
+            if (!dt->hash) return ERR_MEMORY;
+        }
+        const uint64_t hmask = (uint64_t)dt->hcap - 1;
+        const uint32_t hs = dt->stamp; /* never 0: stamps start at 1 */
+        HashSlot *hash = dt->hash;
+        for (int64_t i = 0; i < nb; i++) {
+            int32_t ct = dt->bnd[2 * i], f = dt->bnd[2 * i + 1];
+            int32_t t;
+            if ((err = new_tet(dt, &t))) return err;
+            int32_t *r = TV(dt, t);
+            memcpy(r, TV(dt, ct), 4 * sizeof(int32_t));
+            r[0] &= ~IN_CAVITY;
+            r[f] = q;
+            int32_t out = TN(dt, ct, f);
+            TV(dt, out >> 2)[1] &= ~TESTED_OUT;
+            glue(dt, t, f, out);
+            if (r[0] != inf && r[1] != inf && r[2] != inf && r[3] != inf) dt->last = t;
+            for (int k = 0; k < 3; k++) {
+                int g = REST[f][k];
+                /* face g holds q and the two vertices at the slots other than f and g */
+                uint32_t e0 = (uint32_t)r[OTHER[f][g][0]], e1 = (uint32_t)r[OTHER[f][g][1]];
+                uint32_t lo = e0 < e1 ? e0 : e1, hi = e0 ^ e1 ^ lo;
+                uint64_t key = ((uint64_t)lo << 32) | hi;
+                uint64_t h = (key * 0x9E3779B97F4A7C15ull) >> 32;
+                HashSlot *sl = hash + (h & hmask);
+                while (sl->stamp == hs && sl->key != key) sl = hash + (++h & hmask);
+                /* each key comes exactly twice: the first stores itself, the second links both */
+                int32_t partner = sl->stamp == hs ? sl->val : -1;
+                int32_t *back = partner >= 0 ? &TN(dt, partner >> 2, partner & 3) : &dt->dummy;
+                *back = t * 4 + g;
+                TN(dt, t, g) = partner;
+                sl->stamp = hs;
+                sl->key = key;
+                sl->val = t * 4 + g;
+            }
         }
     }
     /* free the cavity */
@@ -701,6 +769,8 @@ static void dt_free(DT *dt) {
     free(dt->stack);
     free(dt->bnd);
     free(dt->hash);
+    free(dt->vloc);
+    free(dt->ltab);
 }
 
 static int run(const int64_t *cells, int64_t n_in, Result *res) {
@@ -820,6 +890,11 @@ static int run(const int64_t *cells, int64_t n_in, Result *res) {
     dt.rng = 0x2545F4914F6CDD1Dull;
     dt.stamp = 1;
     if (grow((void **)&dt.stack, &dt.stack_cap, 256, sizeof(int32_t))) goto nomem;
+    dt.vloc = malloc((size_t)(m + 1) * sizeof(int32_t));
+    dt.ltab = malloc((size_t)LOCAL_V * LOCAL_V * sizeof(int32_t));
+    if (!dt.vloc || !dt.ltab) goto nomem;
+    memset(dt.vloc, 0xff, (size_t)(m + 1) * sizeof(int32_t));
+    memset(dt.ltab, 0xff, (size_t)LOCAL_V * LOCAL_V * sizeof(int32_t));
     {
         /* ~6.5 tets per point plus the hull's ghosts: reserve once instead of growing by copies */
         int64_t c = 8 * m + 64;
