@@ -313,10 +313,17 @@ static inline uint64_t xorshift(uint64_t *s) {
 static inline const double *P(const DT *dt, int32_t v) { return dt->x + 3 * (int64_t)v; }
 
 /* Does q conflict with the finite, positively oriented tet t? (rule 3) */
-static int conflict_finite(const DT *dt, const int32_t *v, int32_t q) {
+static __attribute__((noinline)) int conflict_perturbed(const DT *dt, const int32_t *v, int32_t q);
+
+static inline int conflict_finite(const DT *dt, const int32_t *v, int32_t q) {
+    int s = insphere_w(&dt->fl, P(dt, v[0]), P(dt, v[1]), P(dt, v[2]), P(dt, v[3]), P(dt, q));
+    if (__builtin_expect(s != 0, 1)) return s > 0;
+    return conflict_perturbed(dt, v, q);
+}
+
+/* rule 3 where the unperturbed W is 0 */
+static __attribute__((noinline)) int conflict_perturbed(const DT *dt, const int32_t *v, int32_t q) {
     const double *pq = P(dt, q);
-    int s = insphere_w(&dt->fl, P(dt, v[0]), P(dt, v[1]), P(dt, v[2]), P(dt, v[3]), pq);
-    if (s) return s > 0;
     /* symbolic perturbation: the five points in descending rank */
     const int32_t *rk = dt->rank;
     int32_t ids[5] = {rk[v[0]], rk[v[1]], rk[v[2]], rk[v[3]], rk[q]};
@@ -387,12 +394,21 @@ static int conflict_coplanar(const DT *dt, int32_t ia, int32_t ib, int32_t ic, i
     return 0; /* not reached */
 }
 
+static __attribute__((noinline)) int conflict_ghost(const DT *dt, const int32_t *v, int32_t q);
+
 /* Does q conflict with tet t (finite or ghost)? */
-static int conflict(const DT *dt, int32_t t, int32_t q) {
+static inline int conflict(const DT *dt, int32_t t, int32_t q) {
     const int32_t *v = TV(dt, t);
     const int32_t inf = dt->n;
-    int k = v[0] == inf ? 0 : v[1] == inf ? 1 : v[2] == inf ? 2 : v[3] == inf ? 3 : -1;
-    if (k < 0) return conflict_finite(dt, v, q);
+    if (__builtin_expect(v[0] != inf && v[1] != inf && v[2] != inf && v[3] != inf, 1))
+        return conflict_finite(dt, v, q);
+    return conflict_ghost(dt, v, q);
+}
+
+/* conflict() for a ghost tet (rule 4) */
+static __attribute__((noinline)) int conflict_ghost(const DT *dt, const int32_t *v, int32_t q) {
+    const int32_t inf = dt->n;
+    int k = v[0] == inf ? 0 : v[1] == inf ? 1 : v[2] == inf ? 2 : 3;
     const double *p[4];
     for (int i = 0; i < 4; i++) p[i] = i == k ? P(dt, q) : P(dt, v[i]);
     int o = orient3d(&dt->fl, p[0], p[1], p[2], p[3]);
