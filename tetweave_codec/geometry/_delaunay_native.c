@@ -530,21 +530,22 @@ static int insert(DT *dt, int32_t q) {
         int32_t t = dt->stack[top++];
         if (grow((void **)&dt->stack, &dt->stack_cap, ns + 4, sizeof(int32_t))) return ERR_MEMORY;
         if (grow((void **)&dt->bnd, &dt->bnd_cap, 2 * (nb + 4), sizeof(int32_t))) return ERR_MEMORY;
+        /* each neighbour: in the cavity already (skip), tested before and outside (a boundary face), or tested
+         * now; the outcomes are data-dependent, so they are counted, not branched on */
         for (int f = 0; f < 4; f++) {
             int32_t u = TN(dt, t, f) >> 2;
             int32_t *uv = TV(dt, u);
-            if (uv[0] & IN_CAVITY) continue;
-            if (!(uv[1] & TESTED_OUT)) {
-                if (conflict(dt, u, q)) {
-                    uv[0] |= IN_CAVITY;
-                    dt->stack[ns++] = u;
-                    continue;
-                }
-                uv[1] |= TESTED_OUT;
+            int32_t in = (uv[0] & IN_CAVITY) != 0, c = 0;
+            if (!((uv[0] | uv[1]) & (IN_CAVITY | TESTED_OUT))) {
+                c = conflict(dt, u, q);
+                uv[0] |= -c & IN_CAVITY;
+                uv[1] |= (c - 1) & TESTED_OUT;
             }
+            dt->stack[ns] = u;
+            ns += c;
             dt->bnd[2 * nb] = t;
             dt->bnd[2 * nb + 1] = f;
-            nb++;
+            nb += 1 - (in | c);
         }
     }
     const int32_t inf = dt->n;
