@@ -9,7 +9,8 @@ the sheet outside it (the sheet's plane minus the solid's cross-section, manifol
     cyl12       the same with a 12-sided cylinder
     boxes       three boxes through each other, two triangles per side
     housing     a hollow box (its cavity an inner box, reversed) with a shaft through it, a gear and a ball inside
-    touching    a box with two boxes on it, face to face (the contact faces coincide, opposite)
+    touching    a box with two boxes on it, face to face (the contact faces coincide, opposite; the truth without
+                them)
     spot_cyl    spot with a 48-sided cylinder through its body and a box through its back
     sheet       spot with a single-sided square (two triangles) through it, poking out on every side
 
@@ -123,14 +124,18 @@ def housing():
     return [outer, cavity, shaft, gear, ball], [outer, shaft]
 
 
-def touching():
-    """A box (1.2 x 0.8 x 0.6) with two boxes standing on it, face to face, one of them over its edge."""
+def touching(overlap: float = 0.0):
+    """A box (1.2 x 0.8 x 0.6) with two boxes standing on it, face to face, one of them over its edge; with
+    `overlap`, the two reach that far down into the box (manifold3d's union of boxes that only touch keeps the
+    contact faces: the truth is made with 1e-6)."""
     import trimesh
     from trimesh.transformations import translation_matrix
 
     base = _tm(trimesh.creation.box(extents=(1.2, 0.8, 0.6)))
-    a = _tm(trimesh.creation.box(extents=(0.4, 0.4, 0.5)), translation_matrix((-0.3, 0.0, 0.55)))
-    b = _tm(trimesh.creation.box(extents=(0.5, 0.3, 0.3)), translation_matrix((0.5, 0.1, 0.45)))
+    a = _tm(
+        trimesh.creation.box(extents=(0.4, 0.4, 0.5 + overlap)), translation_matrix((-0.3, 0.0, 0.55 - overlap / 2))
+    )
+    b = _tm(trimesh.creation.box(extents=(0.5, 0.3, 0.3 + overlap)), translation_matrix((0.5, 0.1, 0.45 - overlap / 2)))
     return [base, a, b]
 
 
@@ -185,8 +190,7 @@ def build(kind: str):
         parts, solids = housing()
         return join(*parts), union(*solids)
     if kind == "touching":
-        parts = touching()
-        return join(*parts), union(*parts)
+        return join(*touching()), union(*touching(1e-6))
     if kind == "spot_cyl":
         parts = spot_cylinder()
         return join(*parts), union(*parts)

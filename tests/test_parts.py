@@ -1,0 +1,150 @@
+"""fit/parts.py and fit/visible.outside_surface: the exact outside surface of assets made of parts (issue 55).
+
+The scenes are benchmarks/parts.py's (primitives through each other, a housing, parts face to face, a sheet through
+a solid), their truths manifold3d's union computed there from the primitives; distances by that module's
+independent measure (trimesh samples, scipy's cKDTree, point-triangle distances)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tetweave_codec.errors import InputError
+
+trimesh = pytest.importorskip("trimesh")
+manifold3d = pytest.importorskip("manifold3d")
+
+from tetweave_codec.benchmarks import parts as scenes  # noqa: E402
+from tetweave_codec.fit import visible  # noqa: E402
+from tetweave_codec.fit.parts import closed_union, split_parts  # noqa: E402
+from tetweave_codec.fit.visible import choose_surface, outside_surface, visible_surface  # noqa: E402
+from tetweave_codec.meshio import normalize  # noqa: E402
+
+
+def ball(radius=0.9, centre=(0.0, 0.0, 0.0), subdivisions=2):
+    m = trimesh.creation.icosphere(subdivisions=subdivisions, radius=radius)
+    return np.asarray(m.vertices, dtype=np.float64) + np.asarray(centre), np.asarray(m.faces, dtype=np.int64)
+
+
+def closed_and_oriented(v, f) -> bool:
+    m = trimesh.Trimesh(v, f, process=False)
+    return bool(m.is_watertight and m.is_winding_consistent and m.volume > 0)
+
+
+def auto(messy):
+    """choose_surface(auto) of a mesh in its normalized frame, and the surface back in the input's frame."""
+    v, f = messy
+    n, scale, offset = normalize(v)
+    choice = choose_surface(n, f, "auto")
+    s = choice.surface
+    return choice, (None if s is None else (s.vertices * scale + offset, s.faces))
+
+
+def test_components_and_closed_parts():
+    a, b = ball(0.5, (-0.6, 0, 0)), ball(0.5, (0.6, 0, 0))
+    inverted = (ball(0.2, (0.6, 0, 0))[0], ball(0.2)[1][:, ::-1])
+    sheet = (np.array([[-1.0, 1.0, -1.0], [1.0, 1.0, -1.0], [1.0, 1.0, 1.0]]), np.array([[0, 1, 2]]))
+    v, f = scenes.join(a, b, inverted, sheet)
+    p = split_parts(v, f)
+    assert p.count == 4
+    assert p.closed.tolist() == [0, 1, 2] and p.inverted.tolist() == [False, False, True]
+    assert p.rest.sum() == 1 and p.rest[-1]
+    # an inconsistently oriented ball and an unwelded soup of a ball: welded, the soup is closed; the other not
+    v2, f2 = ball()
+    f2 = f2.copy()
+    f2[0] = f2[0][::-1]
+    assert split_parts(v2, f2).rest.all()
+    soup = (v2[ball()[1]].reshape(-1, 3), np.arange(3 * len(f2)).reshape(-1, 3))
+    assert split_parts(*soup).closed.tolist() == [0]
+
+
+def test_parts_joined_at_a_vertex_are_two():
+    """Two balls whose icosphere vertices coincide where they overlap: welded, they share vertices, not edges."""
+    v, f = scenes.join(ball(0.6, (-0.3, 0, 0)), ball(0.6, (0.3, 0, 0)))
+    assert len(np.unique(v, axis=0)) < len(v)
+    assert split_parts(v, f).closed.tolist() == [0, 1]
+
+
+def test_union_is_manifold3d_and_keeps_whole_input_faces():
+    parts = scenes.cylinders_through_spheres(48)
+    v, f = scenes.join(*parts)
+    u = closed_union(v, f, split_parts(v, f))
+    tv, tf = scenes.union(*parts)
+    assert closed_and_oriented(u.vertices, u.faces)
+    assert u.area == pytest.approx(trimesh.Trimesh(tv, tf).area, rel=1e-9)
+    kept = u.kept >= 0
+    assert kept.sum() > len(f) // 2
+    assert np.array_equal(u.faces[kept], f[u.kept[kept]])  # the input's own faces and vertices
+    again = closed_union(v, f, split_parts(v, f))
+    assert np.array_equal(again.faces, u.faces) and np.array_equal(again.vertices, u.vertices)
+
+
+@pytest.mark.parametrize("kind", ["cyl48", "cyl12", "boxes", "housing", "spot_cyl"])
+def test_overlapping_and_nested_parts_take_their_exact_union(kind):
+    messy, truth = scenes.build(kind)
+    choice, surface = auto(messy)
+    assert choice.mode == "visible" and "exact union" in choice.reason and "% of the area dropped" in choice.reason
+    assert closed_and_oriented(*surface)
+    assert scenes.measure(truth, *surface)["chamfer"] < 1e-4  # the measure's floor: the same surface
+
+
+def test_hidden_part_leaves_the_outer_mesh_as_it_was():
+    outer = ball(0.9, subdivisions=3)
+    v, f = scenes.join(outer, ball(0.3, (0.1, 0.0, 0.0)))
+    s = outside_surface(v, f)
+    assert np.array_equal(s.faces, outer[1]) and np.array_equal(s.vertices, outer[0])
+
+
+def test_clean_closed_inputs_keep_every_face():
+    """One closed part, even with a slot no view sees into; disjoint parts; parts face to face (manifold3d's
+    union leaves coincident faces as they are: nothing is dropped)."""
+    box = manifold3d.Manifold.cube((1.6, 1.0, 1.0), center=True)
+    slot = manifold3d.Manifold.cube((1.2, 0.02, 0.8), center=True).translate((0.3, 0.0, 0.2))
+    slotted = scenes._arrays(box - slot)
+    choice = choose_surface(normalize(slotted[0])[0], slotted[1], "auto")
+    assert choice.mode == "all" and choice.reason == "one closed surface"
+    disjoint = scenes.join(ball(0.4, (-0.5, 0, 0)), ball(0.4, (0.5, 0, 0)), ball(0.1, (0, 0.8, 0)))
+    assert auto(disjoint)[0].mode == "all"
+    touching = scenes.join(*scenes.touching())
+    choice = auto(touching)[0]
+    assert choice.mode == "all" and "disjoint or touching" in choice.reason
+
+
+def test_sheet_through_a_solid_loses_the_inside_and_keeps_the_rest():
+    messy, truth = scenes.build("sheet")
+    choice, surface = auto(messy)
+    assert choice.mode == "visible" and "other faces" in choice.reason
+    assert scenes.measure(truth, *surface)["chamfer"] < 1e-4
+
+
+def test_long_faces_are_split_to_a_pixel_at_seams():
+    """Without closed parts (every face of the scene reversed at random: renders decide), the pieces of the two
+    triangles per side left inside another box are at most a few pixels deep (where the seam meets the other
+    box's edge) and a small share of the area more than a pixel deep."""
+    from tetweave_codec.fit.initialize import signed_distance
+    from tetweave_codec.geometry.triangles import face_areas
+
+    v, clean = scenes.join(*scenes.boxes())
+    flip = np.random.default_rng(0).random(len(clean)) < 0.5
+    f = clean.copy()
+    f[flip] = f[flip][:, ::-1]
+    n, _, _ = normalize(v)
+    assert not len(split_parts(n, f).closed)
+    s = visible_surface(n, f)
+    pixel = visible.pixel_size(visible.RESOLUTION, visible.bounding_radius(n, f))
+    centroids = s.vertices[s.faces].mean(axis=1)
+    depth = np.max([-signed_distance(centroids, n, clean[o : o + 12]) for o in (0, 12, 24)], axis=0)
+    area = face_areas(s.vertices, s.faces)
+    print(depth.max() / pixel, area[depth > pixel].sum() / area.sum())
+    assert depth.max() < 3 * pixel
+    assert area[depth > pixel].sum() < 1e-3 * area.sum()
+    assert s.refined > 10 * len(f)
+
+
+def test_refinement_budget_is_one_input_error(monkeypatch):
+    monkeypatch.setattr(visible, "MAX_REFINED_FACES", 50)
+    v, f = scenes.join(*scenes.boxes())
+    f = f.copy()
+    f[::2] = f[::2][:, ::-1]
+    with pytest.raises(InputError, match="more than .* faces"):
+        visible_surface(normalize(v)[0], f)
