@@ -13,6 +13,8 @@ the sheet outside it (the sheet's plane minus the solid's cross-section, manifol
                 them)
     spot_cyl    spot with a 48-sided cylinder through its body and a box through its back
     sheet       spot with a single-sided square (two triangles) through it, poking out on every side
+    slabT       spot and that square as a closed box T thick (spot's normalized frame), unioned: what fitting a
+                sheet as a thin slab costs, against the sheet's truth
 
 For each kind and --size: the truth given clean (`clean`: one closed surface, auto keeps it whole), the messy input
 with this tree's --surface auto (`auto`) and, with --before COMMIT, the messy input with that commit's default
@@ -48,7 +50,7 @@ def _arrays(m) -> tuple[np.ndarray, np.ndarray]:
     """(vertices (V,3) float64, faces (F,3) int64) of a trimesh.Trimesh or a manifold3d.Manifold."""
     if hasattr(m, "to_mesh64"):
         mesh = m.to_mesh64()
-        return np.asarray(mesh.vert_properties, dtype=np.float64)[:, :3], np.asarray(mesh.tri_verts, np.int64)
+        return np.array(mesh.vert_properties, dtype=np.float64)[:, :3].copy(), np.array(mesh.tri_verts, np.int64)
     return np.asarray(m.vertices, dtype=np.float64), np.asarray(m.faces, dtype=np.int64)
 
 
@@ -63,7 +65,8 @@ def union(*parts: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray
     """manifold3d's exact union of closed, outward-oriented parts."""
     import manifold3d
 
-    ms = [manifold3d.Manifold(manifold3d.Mesh64(vert_properties=v, tri_verts=f.astype(np.uint64))) for v, f in parts]
+    meshes = [(np.ascontiguousarray(v, dtype=np.float64), np.ascontiguousarray(f, dtype=np.uint64)) for v, f in parts]
+    ms = [manifold3d.Manifold(manifold3d.Mesh64(vert_properties=v, tri_verts=f)) for v, f in meshes]
     return _arrays(manifold3d.Manifold.batch_boolean(ms, manifold3d.OpType.Add))
 
 
@@ -178,6 +181,12 @@ def sheet():
     return [(v, f), square], join((v, f), (sheet_v, tris))
 
 
+def manifold3d_box(extents, centre) -> tuple[np.ndarray, np.ndarray]:
+    import manifold3d
+
+    return _arrays(manifold3d.Manifold.cube(extents, center=True).translate(centre))
+
+
 def build(kind: str):
     """(messy (V,3), (F,3)), (truth (V,3), (F,3)) of `kind` (KINDS)."""
     if kind in ("cyl48", "cyl12"):
@@ -197,6 +206,11 @@ def build(kind: str):
     if kind == "sheet":
         parts, truth = sheet()
         return join(*parts), truth
+    if kind.startswith("slab"):  # slabT: the sheet given as a closed box T thick (what a thickened sheet costs)
+        (solid, square), truth = sheet()
+        y, t = square[0][0, 1], float(kind[4:])
+        slab = manifold3d_box((2.4, t, 2.4), (0.0, y, 0.0))
+        return union(solid, slab), truth
     raise ValueError(f"unknown kind {kind!r}")
 
 

@@ -8,20 +8,28 @@ orientation-free) into face-id + depth buffers (render.rasterize) and derives:
 
 - which faces some view sees (the visible surface; hidden parts and internal walls drop out). A face counts as
   seen when it covers a pixel centre in some view, or its centroid lies within DEPTH_TOLERANCE pixels of the depth
-  buffer there (faces smaller than a pixel). Before the test, faces longer than REFINE_PIXELS pixels are split at
-  their edge midpoints (up to MAX_REFINED_FACES faces), so a large face that another part cuts through (the seams
-  of overlapping primitives) keeps only its seen pieces, and no long strip inside the solid pulls the fit;
+  buffer there (faces smaller than a pixel). A seen face with a corner no view sees, or (longer than WHOLE_PIXELS
+  pixels) a point of a grid WHOLE_PIXELS pixels apart on it, is split at its edge midpoints until the pieces at
+  the seam are about a pixel long (not a fixed number of levels; at most MAX_REFINED_FACES faces, InputError
+  beyond): a long face that another part cuts through keeps only its seen pieces (issue 55: five levels left
+  strips of long faces inside the solid);
 - the orientation of each seen face: flipped when most views that see it see its back. The seen faces of a closed
   shape are then an outward-oriented surface, and the winding number's sign (fit.initialize.signed_distance) is
   that of the surface a viewer sees, whatever the input's own orientation;
-- `choose_surface`: whether the input needs the visible surface ("auto"): it does when, after welding by
-  position, its faces are not consistently oriented, or when more than HIDDEN_AREA_SHARE of its area is seen by
-  no view. Clean closed inputs (and open scans, whose holes show their insides: consistent orientation, little
-  hidden area) keep the whole input, exactly today's encode.
+- `outside_surface`: closed parts need no renders. The exact union of the input's closed parts (fit.parts,
+  manifold3d: hidden parts and overlaps resolved exactly), plus the input's other faces (open parts, sheets,
+  soups, inconsistently oriented parts) as renders of them see them, less what lies inside the union;
+- `choose_surface`: what "auto" fits. Closed parts that overlap or nest (their union drops more than
+  HIDDEN_AREA_SHARE of their area): the exact union. One closed part, or closed parts that are disjoint or touch:
+  the whole input (a clean closed scan keeps the crevices no view sees into, a character its parts). Without
+  closed parts: the visible surface when the faces are not consistently oriented after welding by position, or
+  when more than HIDDEN_AREA_SHARE of the area is seen by no view; else the whole input. Clean closed inputs (and
+  open scans, whose holes show their insides) keep the whole input, exactly today's encode.
 
 A cavity that no outside view sees (the inside of a closed box) is not part of the visible surface.
 
     surface = visible_surface(normalized, faces)     # VisibleSurface: vertices (V',3), faces (F',3), stats
+    surface = outside_surface(normalized, faces)     # the same, closed parts by their exact union
     choice = choose_surface(normalized, faces, "auto")  # SurfaceChoice(mode, reason, surface | None)
 """
 
@@ -56,11 +64,12 @@ MAX_REFINE_LEVELS = 24
 # seen too: a long face whose corners lie outside another part can still pass through it (a sheet through a
 # solid); hidden stretches narrower than this between seen points are what stays.
 WHOLE_PIXELS = 8
-# Points tested at once for `_inside_seen` (memory: views x points booleans and a few float arrays of points).
+# Points tested at once by `_face_points_seen` (memory: views x points booleans and a few float arrays of points).
 POINT_CHUNK = 200_000
 # Inputs with more faces than this are not rendered (InputError): the per-view arrays would exceed memory.
 MAX_FACES = 4_000_000
-# "auto" takes the visible surface when more than this share of the input's area is seen by no view.
+# "auto" takes the visible surface when more than this share of the input's area is seen by no view (or lies inside
+# other closed parts).
 HIDDEN_AREA_SHARE = 0.01
 # Renders would exceed this many bytes of buffers per batch: fewer views per batch, then a lower resolution.
 MAX_BUFFER_BYTES = 1 << 30
@@ -71,7 +80,9 @@ class VisibleSurface:
     """The seen faces of the (refined) normalized input, each oriented towards the views that see it.
 
     vertices (V',3) float64 (normalized frame), faces (F',3) int64; hidden_share: the input's area seen by no
-    view over its total area; flipped: seen faces turned to face their views; refined: faces after the split."""
+    view over its total area (`outside_surface`: of the input's area not on the surface); flipped: seen faces turned
+    to face their views; refined: faces after the split; method: "rendered", "union" (closed parts only) or
+    "union+rendered"; closed_parts: the closed parts in the union."""
 
     vertices: np.ndarray
     faces: np.ndarray
