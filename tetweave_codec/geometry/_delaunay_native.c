@@ -449,27 +449,43 @@ static int locate(DT *dt, int32_t q, int32_t *found) {
     int32_t t = dt->last;
     int came = -1;
     const double *pq = P(dt, q);
+    const double qx = pq[0], qy = pq[1], qz = pq[2], bound = dt->fl.orient;
     for (int64_t steps = 0; steps < 4 * dt->count + 64; steps++) {
         const int32_t *v = TV(dt, t);
         int r = (int)(xorshift(&dt->rng) & 3);
-        int moved = 0;
-        for (int j = 0; j < 4; j++) {
-            int f = (r + j) & 3;
-            if (f == came) continue;
-            const double *p[4] = {P(dt, v[0]), P(dt, v[1]), P(dt, v[2]), P(dt, v[3])};
-            p[f] = pq;
-            if (orient3d(&dt->fl, p[0], p[1], p[2], p[3]) < 0) {
-                int32_t code = TN(dt, t, f);
-                t = code >> 2;
-                came = code & 3;
-                moved = 1;
-                break;
+        /* the four orientations with q in place of each vertex, from the vertices translated to q (shared 2x2
+         * minors; the same expression shape as orient3d's, so its static filter holds): o[f] = orient3d of the
+         * tet with vertex f replaced by q = det[B, C, D], -det[A, C, D], det[A, B, D], -det[A, B, C] */
+        const double *pa = P(dt, v[0]), *pb = P(dt, v[1]), *pc = P(dt, v[2]), *pd = P(dt, v[3]);
+        double ax = pa[0] - qx, ay = pa[1] - qy, az = pa[2] - qz;
+        double bx = pb[0] - qx, by = pb[1] - qy, bz = pb[2] - qz;
+        double cx = pc[0] - qx, cy = pc[1] - qy, cz = pc[2] - qz;
+        double dx = pd[0] - qx, dy = pd[1] - qy, dz = pd[2] - qz;
+        double ab = ax * by - bx * ay, ac = ax * cy - cx * ay, ad = ax * dy - dx * ay;
+        double bc = bx * cy - cx * by, bd = bx * dy - dx * by, cd = cx * dy - dx * cy;
+        double o[4] = {bz * cd - cz * bd + dz * bc, -(az * cd - cz * ad + dz * ac), az * bd - bz * ad + dz * ab,
+                       -(az * bc - bz * ac + cz * ab)};
+        unsigned neg = 0;
+        for (int f = 0; f < 4; f++) {
+            if (__builtin_expect(fabs(o[f]) > bound, 1)) {
+                neg |= (unsigned)(o[f] < 0) << f;
+            } else if (f != came) {
+                const double *p[4] = {pa, pb, pc, pd};
+                p[f] = pq;
+                neg |= (unsigned)(orient3d(&dt->fl, p[0], p[1], p[2], p[3]) < 0) << f;
             }
         }
-        if (!moved) {
+        if (came >= 0) neg &= ~(1u << came);
+        if (!neg) {
             *found = t;
             return OK;
         }
+        /* the first face with q strictly beyond it in the order r, r + 1, ... (mod 4) */
+        unsigned rot = ((neg >> r) | (neg << (4 - r))) & 15u;
+        int f = (r + __builtin_ctz(rot)) & 3;
+        int32_t code = TN(dt, t, f);
+        t = code >> 2;
+        came = code & 3;
         if (is_ghost(dt, t)) {
             *found = t;
             return OK;
