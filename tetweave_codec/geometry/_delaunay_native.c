@@ -779,23 +779,29 @@ static int sort_rows(const Row *rows, Row *out, int64_t m, int64_t n) {
     return OK;
 }
 
-/* (a, b, c, d) positively oriented -> the even permutation with the smallest first, the next smallest second */
-static void canonical_tet(uint32_t *v) {
-    int k = 0;
-    for (int i = 1; i < 4; i++)
-        if (v[i] < v[k]) k = i;
-    static const int8_t EVEN[4][4] = {{0, 1, 2, 3}, {1, 0, 3, 2}, {2, 3, 0, 1}, {3, 2, 1, 0}}; /* double transpositions */
-    uint32_t w[4] = {v[EVEN[k][0]], v[EVEN[k][1]], v[EVEN[k][2]], v[EVEN[k][3]]};
-    /* rotate the last three (a 3-cycle: even) so that the smallest comes first */
-    int j = 1;
-    if (w[2] < w[j]) j = 2;
-    if (w[3] < w[j]) j = 3;
-    static const int8_t ROT[4][2] = {{0, 0}, {2, 3}, {3, 1}, {1, 2}};
-    v[0] = w[0];
-    v[1] = w[j];
-    v[2] = w[ROT[j][0]];
-    v[3] = w[ROT[j][1]];
+/* (a, b, c, d) positively oriented -> the even permutation with the smallest first, the next smallest second:
+ * sort the four (distinct) indices with a 5-comparator network, counting swaps without branches; an odd count
+ * swaps the last two back (the result is then an even permutation of the input, and the smallest two lead) */
+#define CSWAP(x, y)                             \
+    do {                                        \
+        uint32_t sw_ = x > y, lo_ = sw_ ? y : x; \
+        y = sw_ ? x : y;                        \
+        x = lo_;                                \
+        par ^= sw_;                             \
+    } while (0)
+static inline void canonical_tet(uint32_t *v) {
+    uint32_t a = v[0], b = v[1], c = v[2], d = v[3], par = 0;
+    CSWAP(a, b);
+    CSWAP(c, d);
+    CSWAP(a, c);
+    CSWAP(b, d);
+    CSWAP(b, c);
+    v[0] = a;
+    v[1] = b;
+    v[2] = par ? d : c;
+    v[3] = par ? c : d;
 }
+#undef CSWAP
 
 static void canonical_tri(uint32_t *v) {
     int k = 0;
