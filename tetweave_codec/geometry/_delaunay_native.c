@@ -695,27 +695,25 @@ static int radix_perm(uint32_t *perm, uint32_t *tmp, int64_t m, const uint32_t *
     return OK;
 }
 
-/* Skilling's 3-D Hilbert index of (x, y, z), `b` bits each (J. Skilling, AIP Conf. Proc. 707, 2004). */
+/* Skilling's 3-D Hilbert index of (x, y, z), `b` bits each (J. Skilling, AIP Conf. Proc. 707, 2004); the
+ * data-dependent branches of the reference are written as masks (they mispredicted about half the time) */
 static uint64_t hilbert3(uint32_t x0, uint32_t x1, uint32_t x2, int b) {
     uint32_t X[3] = {x0, x1, x2};
     uint32_t M = 1u << (b - 1), P_, Q, t;
     for (Q = M; Q > 1; Q >>= 1) {
         P_ = Q - 1;
         for (int i = 0; i < 3; i++) {
-            if (X[i] & Q)
-                X[0] ^= P_;
-            else {
-                t = (X[0] ^ X[i]) & P_;
-                X[0] ^= t;
-                X[i] ^= t;
-            }
+            /* bit Q of X[i] set: invert the low bits of X[0]; else exchange them between X[0] and X[i] */
+            uint32_t m = 0u - ((X[i] & Q) != 0);
+            t = (X[0] ^ X[i]) & P_ & ~m;
+            X[0] ^= (P_ & m) ^ t;
+            X[i] ^= t;
         }
     }
     X[1] ^= X[0];
     X[2] ^= X[1];
     t = 0;
-    for (Q = M; Q > 1; Q >>= 1)
-        if (X[2] & Q) t ^= Q - 1;
+    for (Q = M; Q > 1; Q >>= 1) t ^= (Q - 1) & (0u - ((X[2] & Q) != 0));
     for (int i = 0; i < 3; i++) X[i] ^= t;
     uint64_t key = 0;
     for (int bit = b - 1; bit >= 0; bit--)
