@@ -74,14 +74,18 @@
  * divides every coordinate difference (every predicate is a homogeneous polynomial of differences and the ranks
  * do not change, so no sign changes; grid-quantized points then have small coordinates and most predicates are
  * exact in binary64), and renumbered in insertion order (their ranks kept for the perturbation). Insertion order:
- * BRIO (rounds drawn from a fixed hash of the rank) with a 3-D Hilbert order inside each round. Bowyer-Watson: the first tet from 4 affinely independent points plus 4 ghost tets;
- * each point is located by a visibility walk from the last created tet (faces tried in a fixed pseudo-random
- * order), the cavity of conflicting tets grown by breadth-first search, its boundary starred from the point.
+ * BRIO (rounds drawn from a fixed hash of the rank) with a 3-D Hilbert order inside each round. Bowyer-Watson: the
+ * first tet from 4 affinely independent points plus 4 ghost tets; each point is located by a visibility walk from
+ * the last created tet (the four orientations of a step at once; faces tried in a fixed pseudo-random order), the
+ * cavity of conflicting tets grown by breadth-first search (outcomes counted rather than branched on), its
+ * boundary starred from the point, the new tets linked to each other through a table of oriented boundary edges
+ * on local vertex ids (a hash of the edges for cavities of more than 124 boundary faces).
  * Predicates: binary64 first, decided by a static error bound from the largest coordinate difference S (exact
  * as computed when the largest possible permanent, 6 S^3 for orient3d and 72 S^5 for insphere, is below 2^53:
  * grids of up to 16 bits for orient3d, 9 bits for insphere), then by a bound on the computed permanent
  * (Shewchuk-style semi-static filter), then 128-bit integers.
- * Flat arrays: tet vertices int32 x 4, neighbours int32 x 4 encoded as tet * 4 + face, a free list of deleted tets.
+ * Flat arrays: tet vertices int32 x 4, neighbours int32 x 4 encoded as tet * 4 + face (the tet array in transparent
+ * huge pages on Linux), a free list of deleted tets.
  * The GIL is released during the computation.
  */
 #define PY_SSIZE_T_CLEAN
@@ -259,7 +263,7 @@ typedef struct {
     /* per insertion scratch */
     int32_t *stack;
     int64_t stack_cap;
-    int32_t *bnd; /* boundary records: v[4], face, outside neighbour code: 6 ints each */
+    int32_t *bnd; /* boundary records: cavity tet, face: 2 ints each */
     int64_t bnd_cap;
     HashSlot *hash;
     int64_t hcap;

@@ -2,19 +2,20 @@
 alternatives (files that recorded them).
 
 Backends, measured on a 2-core CPU (CPU time, medians of 7, timing noise +-30 %; 2026-12-06,
-`python -m tetweave_codec.benchmarks.delaunay_speed --repeats 7`: 64K float16-rounded points in a thin sphere
-shell and in a cube, the 16-18K points of the four committed 40 KB bench files):
+`python -m tetweave_codec.benchmarks.delaunay_speed --repeats 7`, two runs: 64K float16-rounded points in a thin
+sphere shell and in a cube, the 16-18K points of the four committed 40 KB bench files):
 
 =========================  ===========  ===========  ==============  ==========================================
 backend                    64K points   40 KB files  license         notes
 =========================  ===========  ===========  ==============  ==========================================
-``exact`` (ours, C)        0.17-0.18 s  41-45 ms     Apache-2.0      exact integer predicates, unique result
-TetGen 1.6 (``tetgenpy``)  0.21-0.22 s  49-66 ms     AGPL-3.0        switches ``Qz``; optional extra ``tetgen``
+``exact`` (ours, C)        0.14-0.15 s  31-37 ms     Apache-2.0      exact integer predicates, unique result
+TetGen 1.6 (``tetgenpy``)  0.21-0.23 s  50-67 ms     AGPL-3.0        switches ``Qz``; optional extra ``tetgen``
 scipy Qhull                2.2-2.5 s    0.36-0.57 s  BSD (Qhull)     ``Qbb Qc Qz Q12 Qt`` on perturbed points
 =========================  ===========  ===========  ==============  ==========================================
 
-"exact" is 1.15-1.50x faster than TetGen there (median 1.25x; issue 54's target of 3x is not met: per point it
-evaluates ~38 insphere and ~20 orient3d predicates, ~25 new tets and ~75 edge-table probes, ~2.5 us in all).
+"exact" is 1.44-1.91x faster than TetGen there (median 1.50x; the version of 56ef249 measured 1.27x in the same
+runs; issue 54's target of 3x is not met: per point it evaluates ~39 insphere and ~22 orient3d predicates, makes
+~25 new tets and links them through a local edge table, ~2 us in all).
 
 ``backend="auto"`` is ``"exact"``: always available (a required C extension, geometry/_delaunay_native.c, no
 third-party code), specified below to the bit so that an independent decoder computes the same tets. TetGen is
