@@ -894,12 +894,16 @@ static int run(const int64_t *cells, int64_t n_in, Result *res) {
     int hbits = bit_length((uint64_t)m) / 3 + 1;
     if (hbits > HILBERT_BITS) hbits = HILBERT_BITS;
     if (hbits < 2) hbits = 2;
+    /* the cell of a coordinate x is floor(x 2^hbits / span): both operands are exact in binary64 (< 2^33) and an
+     * inexact quotient is at least 1 / span from an integer, so the rounded division floors to the same cell as
+     * the integer division, without its latency */
+    const double cells_per_unit = (double)((int64_t)1 << hbits), span_d = (double)span;
     for (int64_t r = 0; r < m; r++) {
         uint32_t h[3];
-        for (int a = 0; a < 3; a++) h[a] = (uint32_t)(((int64_t)dt.x[3 * r + a] << hbits) / span);
+        for (int a = 0; a < 3; a++) h[a] = (uint32_t)(dt.x[3 * r + a] * cells_per_unit / span_d);
         uint64_t z = splitmix64((uint64_t)r);
-        int tz = 0;
-        while (tz < BRIO_LEVELS && !((z >> tz) & 1)) tz++;
+        int tz = z ? __builtin_ctzll(z) : BRIO_LEVELS; /* trailing zero bits, at most BRIO_LEVELS */
+        if (tz > BRIO_LEVELS) tz = BRIO_LEVELS;
         uint64_t round = (uint64_t)(BRIO_LEVELS - tz);
         order[r] = (round << 56) | (hilbert3(h[0], h[1], h[2], hbits) << 26) | (uint64_t)r;
     }
