@@ -96,8 +96,8 @@ def test_hidden_part_leaves_the_outer_mesh_as_it_was():
 
 
 def test_clean_closed_inputs_keep_every_face():
-    """One closed part, even with a slot no view sees into; disjoint parts; parts face to face (manifold3d's
-    union leaves coincident faces as they are: nothing is dropped)."""
+    """One closed part, even with a slot no view sees into; disjoint parts, 1e-4 apart (parts closer than twice
+    fit.parts.TOUCH_OFFSET of their size count as face to face)."""
     box = manifold3d.Manifold.cube((1.6, 1.0, 1.0), center=True)
     slot = manifold3d.Manifold.cube((1.2, 0.02, 0.8), center=True).translate((0.3, 0.0, 0.2))
     slotted = scenes._arrays(box - slot)
@@ -105,9 +105,20 @@ def test_clean_closed_inputs_keep_every_face():
     assert choice.mode == "all" and choice.reason == "one closed surface"
     disjoint = scenes.join(ball(0.4, (-0.5, 0, 0)), ball(0.4, (0.5, 0, 0)), ball(0.1, (0, 0.8, 0)))
     assert auto(disjoint)[0].mode == "all"
-    touching = scenes.join(*scenes.touching())
-    choice = auto(touching)[0]
+    box = scenes._arrays(manifold3d.Manifold.cube((1.0, 1.0, 1.0)))
+    near = scenes.join(box, (box[0] + (1.0 + 1e-4, 0.3, 0.0), box[1]))
+    choice = auto(near)[0]
     assert choice.mode == "all" and "disjoint or touching" in choice.reason
+
+
+def test_parts_face_to_face_lose_their_contact():
+    """manifold3d's union keeps coincident opposite faces (its symbolic perturbation): the union of the parts
+    moved out by 1e-6 drops them."""
+    messy, truth = scenes.build("touching")
+    choice, surface = auto(messy)
+    assert choice.mode == "visible" and "exact union" in choice.reason
+    assert closed_and_oriented(*surface)
+    assert scenes.measure(truth, *surface)["chamfer"] < 1e-5
 
 
 def test_sheet_through_a_solid_loses_the_inside_and_keeps_the_rest():

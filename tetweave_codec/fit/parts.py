@@ -27,6 +27,13 @@ import numpy as np
 
 from tetweave_codec.geometry.triangles import face_areas
 
+# Parts that touch face to face: manifold3d's symbolic perturbation leaves coincident opposite faces in the union
+# (two solids side by side), a membrane inside the solid. The union is computed again with every closed part moved
+# outwards along its vertex normals by this share of the parts' bounding box; when that drops more than
+# CONTACT_AREA_SHARE of the exact union's area, the contacts were real and the moved union is the surface (its
+# vertices 1e-6 of the box off the input's: far below any quantization step).
+TOUCH_OFFSET = 1e-6
+CONTACT_AREA_SHARE = 1e-4
 # A closed part with |volume| below this share of its bounding box's volume is flat (two coincident sheets): not a
 # solid, left to the renders.
 MIN_VOLUME_SHARE = 1e-9
@@ -122,6 +129,31 @@ def _manifold(vertices: np.ndarray, faces: np.ndarray, face_ids: np.ndarray | No
     return m
 
 
+def _moved_out(m):
+    """The closed part (manifold3d.Manifold) with each vertex moved outwards along its area-weighted normal by
+    TOUCH_OFFSET of its bounding box's longest side (face ids kept)."""
+    import manifold3d
+
+    mesh = m.to_mesh64()
+    v = np.array(mesh.vert_properties, dtype=np.float64)[:, :3]
+    f = np.array(mesh.tri_verts, dtype=np.int64).reshape(-1, 3)
+    cross = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    normals = np.zeros_like(v)
+    for k in range(3):
+        np.add.at(normals, f[:, k], cross)
+    normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-300)
+    lo, hi = v.min(axis=0), v.max(axis=0)
+    v = v + normals * (TOUCH_OFFSET * float((hi - lo).max()))
+    moved = manifold3d.Manifold(
+        manifold3d.Mesh64(
+            vert_properties=np.ascontiguousarray(v),
+            tri_verts=np.ascontiguousarray(f, dtype=np.uint64),
+            face_id=np.ascontiguousarray(np.asarray(mesh.face_id), dtype=np.uint64),
+        )
+    )
+    return moved if moved.status() == manifold3d.Error.NoError else m
+
+
 def split_parts(vertices: np.ndarray, faces: np.ndarray) -> Parts:
     """The connected components of the input (vertices (V,3), faces (F,3)) after welding by position, and which
     are closed parts (module docstring)."""
@@ -176,8 +208,12 @@ def closed_union(vertices: np.ndarray, faces: np.ndarray, parts: Parts) -> Union
         return Union(v, np.zeros((0, 3), dtype=np.int64), np.zeros(0, dtype=np.int64), 0.0, 0.0)
     union = manifolds[0] if len(manifolds) == 1 else manifolds[0].batch_boolean(manifolds, manifold3d.OpType.Add)
     mesh = union.to_mesh64()
-    uv = np.asarray(mesh.vert_properties, dtype=np.float64)[:, :3]
-    uf = np.asarray(mesh.tri_verts, dtype=np.int64).reshape(-1, 3)
+    if len(manifolds) > 1:
+        moved = manifolds[0].batch_boolean([_moved_out(m) for m in manifolds], manifold3d.OpType.Add)
+        if moved.surface_area() < (1.0 - CONTACT_AREA_SHARE) * union.surface_area():
+            mesh = moved.to_mesh64()
+    uv = np.array(mesh.vert_properties, dtype=np.float64)[:, :3]
+    uf = np.array(mesh.tri_verts, dtype=np.int64).reshape(-1, 3)
     # an output triangle is an input face kept whole when its corners are that face's corners (in its turn)
     face_id = np.asarray(mesh.face_id, dtype=np.int64)
     ok = (face_id >= 0) & (face_id < len(f))
