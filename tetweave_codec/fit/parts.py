@@ -255,3 +255,30 @@ def closed_union(vertices: np.ndarray, faces: np.ndarray, parts: Parts) -> Union
     out_f = np.concatenate([kept_faces, cut])
     kept = np.concatenate([whole, np.full(len(cut), -1, dtype=np.int64)])
     return Union(out_v, out_f, kept, float(face_areas(out_v, out_f).sum()), parts_area)
+
+
+def thin_slab(vertices: np.ndarray, faces: np.ndarray, thickness: float) -> tuple[np.ndarray, np.ndarray]:
+    """An open surface (vertices (V,3), faces (F,3): sheets, cards, leaves) as a closed slab `thickness` thick:
+    welded by position and consistently oriented per component (trimesh), its vertices moved by +-thickness / 2
+    along their area-weighted normals (the top with the faces' orientation, the bottom reversed), every boundary
+    edge closed by a wall of two triangles. Returns (vertices (2V',3), faces (2F + 4B, 3)), outward-oriented where
+    the input is an edge-manifold (the fit's winding number is then 1 inside the slab)."""
+    import trimesh
+
+    m = trimesh.Trimesh(np.asarray(vertices, dtype=np.float64), np.asarray(faces, dtype=np.int64), process=True)
+    trimesh.repair.fix_winding(m)
+    v = np.asarray(m.vertices, dtype=np.float64)
+    f = np.asarray(m.faces, dtype=np.int64)
+    cross = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    normals = np.zeros_like(v)
+    for k in range(3):
+        np.add.at(normals, f[:, k], cross)
+    normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-300)
+    n = len(v)
+    out_v = np.concatenate([v + 0.5 * thickness * normals, v - 0.5 * thickness * normals])
+    directed = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+    key = directed[:, 0] * n + directed[:, 1]
+    twin = directed[:, 1] * n + directed[:, 0]
+    a, b = directed[~np.isin(key, twin)].T  # boundary edges a -> b, as the top's faces run them
+    walls = np.concatenate([np.stack([b, a, a + n], axis=1), np.stack([b, a + n, b + n], axis=1)])
+    return out_v, np.concatenate([f, f[:, ::-1] + n, walls])

@@ -66,6 +66,11 @@ MAX_REFINE_LEVELS = 24
 WHOLE_PIXELS = 8
 # Points tested at once by `_face_points_seen` (memory: views x points booleans and a few float arrays of points).
 POINT_CHUNK = 200_000
+# The non-closed faces that `outside_surface` keeps beside closed parts (sheets, cards) become a closed slab this
+# thick (normalized frame, fit.parts.thin_slab): a single-sided square through spot at --size 5k came out with holes
+# over 16 % of it (6.4e-3 against spot + the square); given as a 0.0075-thick box, 3.7e-3 (docs/measurements/
+# parts.md). 0 keeps them open.
+SHEET_THICKNESS = 0.0075
 # Inputs with more faces than this are not rendered (InputError): the per-view arrays would exceed memory.
 MAX_FACES = 4_000_000
 # "auto" takes the visible surface when more than this share of the input's area is seen by no view (or lies inside
@@ -434,6 +439,15 @@ def outside_surface(vertices: np.ndarray, faces: np.ndarray, parts=None) -> Visi
         raise InputError("mesh: no face has a visible area")
     share = max(0.0, 1.0 - float(face_areas(out_v, out_f).sum()) / total)
     flipped = int(parts.inverted.sum() + (flip & rest_seen).sum())
+    # the other faces' pieces as a thin closed slab: an open sheet fitted as it is comes out as a slab with holes
+    from tetweave_codec.fit.parts import thin_slab
+
+    n_union = int(keep_union.sum())
+    if SHEET_THICKNESS > 0 and len(out_f) > n_union:
+        sv, sf = thin_slab(out_v, out_f[n_union:], SHEET_THICKNESS)
+        used, inverse = np.unique(out_f[:n_union], return_inverse=True)
+        out_v = np.concatenate([out_v[used], sv])
+        out_f = np.concatenate([inverse.reshape(-1, 3), sf + len(used)]).astype(np.int64)
     return VisibleSurface(out_v, out_f, share, flipped, len(out_f), "union+rendered", n_closed)
 
 
