@@ -108,8 +108,18 @@ def _shell_cells(rng: np.random.Generator, bits: int, count: int, shape: str) ->
     return cells[near], sdf[near]
 
 
-def seed_files(seed: int = 0, max_points: int = 3000, holes: bool = True) -> list[tuple[str, bytes]]:
+# The Delaunay backends of the seed files, by turns: the exact Delaunay (what the encoder writes), Qhull and
+# TetGen (earlier encoders' files); LEGACY_BACKENDS is the list before the exact Delaunay, which replays the
+# campaigns recorded then.
+BACKENDS = ("exact", "qhull", "tetgen")
+LEGACY_BACKENDS = ("tetgen", "qhull", "tetgen")
+
+
+def seed_files(
+    seed: int = 0, max_points: int = 3000, holes: bool = True, backends: tuple[str, ...] = BACKENDS
+) -> list[tuple[str, bytes]]:
     """Valid version-2 files (name, bytes) covering every header variant the writer produces; see module doc.
+    backends: the Delaunay backend of seed k is backends[k % 3].
     holes: add copies of a few of them with a holes section (flags bit 7), and of the smoothed ones with
     crease-preserving smoothing (bit 7 of the position-bits byte); without them the list is that of before holes
     existed, so the campaign's recorded cases replay."""
@@ -121,8 +131,7 @@ def seed_files(seed: int = 0, max_points: int = 3000, holes: bool = True) -> lis
         cells, sdf = _shell_cells(rng, bits, count, "torus" if k % 2 else "sphere")
         q = (degree + 1) ** 2
         c = rng.normal(scale=0.4, size=(len(cells), q))
-        # Delaunay backends: the exact Delaunay (what the encoder writes), Qhull, TetGen (earlier encoders' files)
-        backend = ("exact", "qhull", "tetgen")[k % 3]
+        backend = backends[k % 3]
         flags = (FLAG_QHULL if backend == "qhull" else 0) | (FLAG_S_PREDICTED if k % 4 != 3 else 0)
         flags |= FLAG_OCTREE_CONTEXTS if k % 5 in (1, 2, 4) else 0  # context-coded positions in 3 of 5
         flags |= smoothing_flags(k % 4)  # smoothing 0-3 steps
@@ -142,7 +151,7 @@ def seed_files(seed: int = 0, max_points: int = 3000, holes: bool = True) -> lis
         pts = Q.dequantize_positions(cells, 6)
         f, _ = quantize_file(
             pts, rng.normal(size=n), None, -1, position_bits=6, s_step=1e-3, c_band_steps=[],
-            flags=FLAG_S_PREDICTED | (FLAG_QHULL if n % 2 else 0),
+            flags=FLAG_S_PREDICTED | (FLAG_QHULL if n % 2 else 0), exact=not n % 2 and backends[0] == "exact",
         )  # fmt: skip
         files.append((f"tiny-n{n}", pack_v2(f)))
     if holes:

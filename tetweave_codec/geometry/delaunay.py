@@ -2,7 +2,7 @@
 alternatives (files that recorded them).
 
 Backends, measured on a 2-core CPU (CPU time, medians of 7, timing noise +-30 %; 2026-12-06,
-`python -m tetweave_codec.benchmarks.delaunay_speed --repeats 7`, two runs: 64K float16-rounded points in a thin
+`benchmarks/delaunay_speed.py --repeats 7`, two runs: 64K float16-rounded points in a thin
 sphere shell and in a cube, the 16-18K points of the four committed 40 KB bench files):
 
 =========================  ===========  ===========  ==============  ==========================================
