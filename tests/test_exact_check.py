@@ -109,7 +109,9 @@ def crease_corners(draw):
 
 @pytest.mark.parametrize("native", [True, False], ids=["native", "reference"])
 @given(case=st.one_of(near_degenerate_soups(), crease_corners()))
-@settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+# derandomize: the same 200 cases on every run (CI included); random exploration is the fuzz script's job. A
+# random run found the sliver below, which the predicate misses (SLIVER_MISSED).
+@settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow], derandomize=True)
 def test_the_decoders_predicate_flags_every_exact_contact(native, case):
     """geometry/intersections.py is conservative: every face in a pair the exact check finds is flagged."""
     from tetweave_codec.geometry import intersections as I
@@ -125,3 +127,27 @@ def test_the_decoders_predicate_flags_every_exact_contact(native, case):
         I.NATIVE = saved
     exact = X.check(v, f).pairs
     assert flags[exact.reshape(-1)].all()
+
+
+# A face 4e-25 wide (vertices 3 and 7 differ by 4e-25 in x) whose exact contact with face 2 the decoder's predicate
+# does not flag (native and reference alike; found by a random run of the test above on 2026-12-06, present since
+# at least 0a60d8a). Its area (n . n ~ 1e-50) is above zero, so it is tested, but every tolerance of the pair
+# test is relative to the faces' sizes and this contact lies ~1e-25 from the sliver's plane. Marching tets places
+# no two vertices of a decoded face that close; kept as a known gap of the conservative claim.
+SLIVER_MISSED = (
+    np.array(
+        [[0.5, 0.0, -0.5], [0.25, -0.25, 0.25], [0.5, -0.5, 0.5], [0.0, -0.25, -0.25], [0.0, -0.5, 0.0],
+         [0.0, -0.25, 0.25], [-0.25, 0.25, 0.5], [-4.13590306e-25, -0.25, -0.25], [-0.5, -0.25, 0.0]]
+    ),
+    np.array([[2, 7, 3], [7, 5, 0], [4, 0, 6]]),
+)  # fmt: skip
+
+
+@pytest.mark.xfail(strict=True, reason="known gap: a 4e-25-wide sliver's contact is not flagged")
+def test_a_sliver_contact_is_flagged():
+    from tetweave_codec.geometry import intersections as I
+
+    v, f = SLIVER_MISSED
+    exact = X.check(v, f).pairs
+    assert len(exact)  # the contact is real
+    assert I.self_intersecting_faces(v, f)[exact.reshape(-1)].all()
