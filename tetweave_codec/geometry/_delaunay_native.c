@@ -536,6 +536,27 @@ static const int8_t EDGE[4][4][2] = {
 #define IN_CAVITY 0x40000000
 #define TESTED_OUT 0x40000000
 
+/* The new tet of the i-th cavity boundary face: its cavity tet with the vertex opposite the face replaced by q,
+ * glued to the tet across the face; *t its index, *f the face (q's slot). The cavity tets stay intact until all
+ * new tets are made (the free list holds only earlier insertions' tets). */
+static inline int star_tet(DT *dt, int64_t i, int32_t q, int32_t inf, int32_t *t_out, int32_t *f_out) {
+    int32_t ct = dt->bnd[2 * i], f = dt->bnd[2 * i + 1];
+    int32_t t;
+    int err = new_tet(dt, &t);
+    if (err) return err;
+    int32_t *r = TV(dt, t);
+    memcpy(r, TV(dt, ct), 4 * sizeof(int32_t));
+    r[0] &= ~IN_CAVITY;
+    r[f] = q;
+    int32_t out = TN(dt, ct, f);
+    TV(dt, out >> 2)[1] &= ~TESTED_OUT;
+    glue(dt, t, f, out);
+    if (r[0] != inf && r[1] != inf && r[2] != inf && r[3] != inf) dt->last = t;
+    *t_out = t;
+    *f_out = f;
+    return OK;
+}
+
 static int insert(DT *dt, int32_t q) {
     int32_t seed;
     int err = locate(dt, q, &seed);
@@ -570,22 +591,13 @@ static int insert(DT *dt, int32_t q) {
     }
     const int32_t inf = dt->n;
     if (nb <= LOCAL_NB) {
-        /* new tets: the cavity tet of each boundary face with the vertex opposite it replaced by q; the cavity
-         * tets stay intact until all are made (the free list holds only earlier insertions' tets) */
+        /* new tets (star_tet), linked to each other through a local table of their edges */
         int32_t *vloc = dt->vloc, *ltab = dt->ltab, vlist[LOCAL_V];
         int nv = 0;
         for (int64_t i = 0; i < nb; i++) {
-            int32_t ct = dt->bnd[2 * i], f = dt->bnd[2 * i + 1];
-            int32_t t;
-            if ((err = new_tet(dt, &t))) return err;
-            int32_t *r = TV(dt, t);
-            memcpy(r, TV(dt, ct), 4 * sizeof(int32_t));
-            r[0] &= ~IN_CAVITY;
-            r[f] = q;
-            int32_t out = TN(dt, ct, f);
-            TV(dt, out >> 2)[1] &= ~TESTED_OUT;
-            glue(dt, t, f, out);
-            if (r[0] != inf && r[1] != inf && r[2] != inf && r[3] != inf) dt->last = t;
+            int32_t t, f;
+            if ((err = star_tet(dt, i, q, inf, &t, &f))) return err;
+            const int32_t *r = TV(dt, t);
             int lid[4];
             for (int k = 0; k < 3; k++) {
                 int s = REST[f][k];
@@ -630,17 +642,9 @@ static int insert(DT *dt, int32_t q) {
         const uint32_t hs = dt->stamp; /* never 0: stamps start at 1 */
         HashSlot *hash = dt->hash;
         for (int64_t i = 0; i < nb; i++) {
-            int32_t ct = dt->bnd[2 * i], f = dt->bnd[2 * i + 1];
-            int32_t t;
-            if ((err = new_tet(dt, &t))) return err;
-            int32_t *r = TV(dt, t);
-            memcpy(r, TV(dt, ct), 4 * sizeof(int32_t));
-            r[0] &= ~IN_CAVITY;
-            r[f] = q;
-            int32_t out = TN(dt, ct, f);
-            TV(dt, out >> 2)[1] &= ~TESTED_OUT;
-            glue(dt, t, f, out);
-            if (r[0] != inf && r[1] != inf && r[2] != inf && r[3] != inf) dt->last = t;
+            int32_t t, f;
+            if ((err = star_tet(dt, i, q, inf, &t, &f))) return err;
+            const int32_t *r = TV(dt, t);
             for (int k = 0; k < 3; k++) {
                 int g = REST[f][k];
                 /* face g holds q and the two vertices at the slots other than f and g */
