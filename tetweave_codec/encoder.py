@@ -11,6 +11,7 @@ encoder reported" holds by construction (and is tested).
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 from typing import NamedTuple
 
 import numpy as np
@@ -57,6 +58,16 @@ DEFAULT_FACE_RATIO = 2.0
 # grid points); the largest keeps the decoded faces under the ratio.
 CONTROL_FACES_PER_POINT = 4.6
 MIN_DEFAULT_POINTS = 256  # below this the fit cannot hold a shape; tiny inputs get it (and the summary's Draco line)
+# The default encode of a tiny input (`small_input`: one whose `default_points` is MIN_DEFAULT_POINTS, below ~2,350
+# faces with a Loop level, ~590 without) runs the preset's iterations as they are (not scaled up for a small fit,
+# fit.config.scaled_schedule: 400 instead of 700 by default) with SMALL_INPUT_SAMPLES input samples per call of the
+# 3-D term instead of fit.surface_loss.INPUT_SAMPLES (8,000): the control mesh of 256 points has ~1,000 faces, and
+# 8,000 samples per call were half of each iteration. Encode (one thread, API) of a 4-face tetrahedron, a 12-face
+# cube, a 20-face icosahedron, an 80-face sphere, a 500-face torus: 12-13 s -> 3.0-3.4 s; Chamfer 1.59e-3 / 1.03e-3 /
+# 3.00e-3 / 3.08e-3 / 3.95e-3 -> 1.43e-3 / 2.47e-3 / 4.00e-3 / 3.44e-3 / 4.50e-3; with 700 iterations 4.5-5.1 s and
+# 1.80e-3 / 1.15e-3 / 4.68e-3 / 3.22e-3 / 3.83e-3 (tiny fits vary by ~1.5x from run to run); 1,000 samples per call
+# measured the same errors as 500 (docs/measurements/small_inputs.md).
+SMALL_INPUT_SAMPLES = 500
 DEFAULT_SH_DEGREE = 1
 # SH degree of CAD parts (`input_defaults`): none. fandisk, bytes x Chamfer of rate-controlled
 # files against degree 1 (docs/measurements/creases.md, 2026-12-01): 10 KB 0.87-0.92 (three seeds), 20 / 40 KB
@@ -226,16 +237,20 @@ def encode(
         subdivision = chosen.subdivision if subdivision is None else subdivision
         sh_degree = chosen.sh_degree if sh_degree is None else sh_degree
         keep_creases = chosen.creases if keep_creases is None else keep_creases
+    schedule = schedule_for(quality, iters)
+    small = points is None and size is None and max_error is None and small_input(len(f), subdivision)
+    if small:  # a tiny input's default fit: see SMALL_INPUT_SAMPLES
+        schedule = replace(schedule, surface_samples=SMALL_INPUT_SAMPLES)
     if points is None:
         points = default_points(len(f), subdivision)
     settings = FitSettings(
         sh_degree=sh_degree,
-        schedule=schedule_for(quality, iters),
+        schedule=schedule,
         quality=quality,
         device=resolve_device(device),
         seed=seed,
         init=init,
-        scale_iterations=iters is None,
+        scale_iterations=iters is None and not small,
         smoothing=smoothing,
         subdivision=subdivision,
         creases=bool(keep_creases and (smoothing or subdivision)),
@@ -272,6 +287,13 @@ def default_points(input_faces: int, subdivision: int) -> int:
     decoder's `subdivision` Loop levels (each multiplies the faces by 4)."""
     per_point = CONTROL_FACES_PER_POINT * 4**subdivision
     return int(min(DEFAULT_POINTS, max(MIN_DEFAULT_POINTS, DEFAULT_FACE_RATIO * input_faces / per_point)))
+
+
+def small_input(input_faces: int, subdivision: int) -> bool:
+    """Whether an input of `input_faces` faces is tiny: its default fit (`default_points`, the decoder's `subdivision`
+    Loop levels) is the smallest, MIN_DEFAULT_POINTS. Its default encode takes the fast settings of
+    SMALL_INPUT_SAMPLES."""
+    return default_points(input_faces, subdivision) == MIN_DEFAULT_POINTS
 
 
 def _check_no_other_options(given: dict) -> None:

@@ -9,6 +9,7 @@ a bisection visits: about four Draco encodes and Chamfer estimates instead of ni
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -169,8 +170,11 @@ def decimate_draco_at_chamfer(
             if keep not in meshes:
                 meshes[keep] = decimate(vertices, faces, keep)
             v, f = meshes[keep]
-            data = draco_encode(v, f, depth, compression_level)
-            settings[(keep, depth)] = (len(f), len(data), float(distance(*draco_decode(data))))
+            if not len(f):  # a tiny input (a tetrahedron) decimates to nothing: no file, no shape (Draco refuses it)
+                settings[(keep, depth)] = (0, 0, math.inf)
+            else:
+                data = draco_encode(v, f, depth, compression_level)
+                settings[(keep, depth)] = (len(f), len(data), float(distance(*draco_decode(data))))
         return settings[(keep, depth)][2]
 
     keep = float(np.clip(start_faces / n, MIN_KEEP, 1.0))

@@ -39,6 +39,9 @@ class Schedule:
     # neighbours, the cheapest to remove first (fit.relocate); 0 = only passive points move (the paper). See
     # docs/measurements/relocation.md.
     relocate: float = 0.15
+    # Input surface samples per call of the 3-D term (and mesh samples, at least as many); None: the term's own
+    # fit.surface_loss.INPUT_SAMPLES. Fewer only for the default encode of a tiny input (encoder.SMALL_INPUT_SAMPLES).
+    surface_samples: int | None = None
 
 
 # Iteration counts are far below the paper's 5000 + 2000: the SDF start begins near the answer, and the 3-D term

@@ -17,7 +17,7 @@ from torch import Tensor
 from tetweave_codec.fit import losses
 from tetweave_codec.fit.config import FitConfig, LearningRates
 from tetweave_codec.fit.optim import Adam
-from tetweave_codec.fit.surface_loss import SurfaceTarget
+from tetweave_codec.fit.surface_loss import INPUT_SAMPLES, SurfaceTarget
 from tetweave_codec.fit.targets import Targets
 from tetweave_codec.geometry.delaunay import tetrahedralize
 from tetweave_codec.geometry.marching_tets import Topology, marching_tets, marching_tets_topology
@@ -214,7 +214,13 @@ def regularized_loss(
         if ctx.surface is not None and weights.surface > 0:
             # a subdivided mesh is drawn from as densely as its control mesh: 4^L times the samples would cost
             # 4^L times the queries for a surface that is smoother, not more detailed
-            surface = ctx.surface.loss(mt.vertices, mt.faces, ctx.generator, min_samples=base.vertices.shape[0])
+            surface = ctx.surface.loss(
+                mt.vertices,
+                mt.faces,
+                ctx.generator,
+                per_call=cfg.schedule.surface_samples or INPUT_SAMPLES,
+                min_samples=base.vertices.shape[0],
+            )
             total = total + weights.surface * surface.chamfer + weights.surface_normals * surface.normals
             parts["surface"] = float(surface.chamfer.detach())
             parts["surface_normals"] = float(surface.normals.detach())

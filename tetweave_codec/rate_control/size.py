@@ -118,13 +118,21 @@ def size_quantization(points: int, size: int, detail: float) -> Quantization:
 
 
 def scaled(quant: Quantization, scale: float, bits: int | None = None) -> Quantization:
-    """quant with its s and c steps multiplied by `scale` (and other position bits)."""
+    """quant with its s and c steps multiplied by `scale` (and other position bits), each kept within what the
+    container stores (formats.quantize: [MIN_STEP, MAX_S_STEP] and [MIN_STEP, MAX_C_STEP] as float32). The one
+    place rate control proposes steps: a step the container refuses would end the encode after its fit."""
     return replace(
         quant,
         position_bits=quant.position_bits if bits is None else bits,
-        s_step=quant.s_step * scale,
-        c_band_steps=tuple(st * scale for st in quant.c_band_steps),
+        s_step=_storable(quant.s_step * scale, Q.MAX_S_STEP),
+        c_band_steps=tuple(_storable(st * scale, Q.MAX_C_STEP) for st in quant.c_band_steps),
     )
+
+
+def _storable(step: float, largest: float) -> float:
+    """`step` clamped into [MIN_STEP, largest]; both ends are float32 numbers, so the file's float32 rounding of the
+    step stays inside too."""
+    return min(max(float(step), Q.MIN_STEP), largest)
 
 
 def encode_to_size(job, size: int, *, measure: bool = True):
@@ -142,6 +150,15 @@ def encode_to_size(job, size: int, *, measure: bool = True):
             f"(~{largest:,} bytes); use --points for larger files"
         )
     points = max(points, MIN_RATE_POINTS)
+    ctx, result, packed, label = _fit_for_size(job, size, points, detail)
+    _check_band(result, packed, size)
+    extra = {"target_bytes": size, "rate_control": label}
+    return job.result(result, ctx, points, measure=measure, data=packed.data, decoded=packed.decoded, extra=extra)
+
+
+def _fit_for_size(job, size: int, points: int, detail: float):
+    """One --size fit of `points` points: main stage, the quantization chosen from exact packed sizes (`choose`),
+    the late stage and `_fit_band`'s nudging. Returns (context, FinishResult, packing.Packed, rate-control label)."""
     base = size_quantization(points, size, detail)
     ctx, params = job.main_stage(points, base)
     sh_degree = job.settings.sh_degree
@@ -163,9 +180,8 @@ def encode_to_size(job, size: int, *, measure: bool = True):
         chosen = choose(candidates, base, size)
         bits, scale = chosen.position_bits, chosen.scale
         result = complete(finals[bits], ctx, chosen.quantization)
-    result, packed = _into_band(job, ctx, result, job.packed(result, ctx), size)
-    extra = {"target_bytes": size, "rate_control": f"{points} points, b {bits}, steps x{scale:g}"}
-    return job.result(result, ctx, points, measure=measure, data=packed.data, decoded=packed.decoded, extra=extra)
+    result, packed = _fit_band(job, ctx, result, job.packed(result, ctx), size)
+    return ctx, result, packed, f"{points} points, b {bits}, steps x{scale:g}"
 
 
 def choose(candidates: list[Candidate], base: Quantization, size: int) -> Candidate:
@@ -247,12 +263,25 @@ def _into_band(job, ctx, result: FinishResult, packed, size: int):
     """(FinishResult, packing.Packed) nudged by `_fit_band` into [SIZE_FLOOR * size, size]; InputError when that
     fails."""
     result, packed = _fit_band(job, ctx, result, packed, size)
-    if not SIZE_FLOOR * size <= len(packed.data) <= size:
+    _check_band(result, packed, size)
+    return result, packed
+
+
+def _check_band(result: FinishResult, packed, size: int) -> None:
+    """InputError (one line) unless the packed file is in [SIZE_FLOOR * size, size]; above it, the smallest file
+    reached (`_fit_band`: the coarsest steps the container stores). A size near that number is not promised: another
+    target chooses another quantization before the late stage, and the coarsest file of spot's 128-point fit was
+    338 bytes at --size 200, 356 at --size 338 (2026-12-06)."""
+    if len(packed.data) > size:
+        raise InputError(
+            f"could not meet a size of {size:,} bytes: the smallest file this input reached has {len(packed.data):,} "
+            f"bytes ({result.s.shape[0]:,} points at the coarsest steps the container stores); ask for a larger size"
+        )
+    if len(packed.data) < SIZE_FLOOR * size:
         raise InputError(
             f"could not meet a size of {size:,} bytes: the closest file has {len(packed.data):,} bytes "
             f"({result.s.shape[0]:,} points); try another size or --points"
         )
-    return result, packed
 
 
 def _fit_band(job, ctx, result: FinishResult, packed, size: int):
@@ -268,12 +297,17 @@ def _fit_band(job, ctx, result: FinishResult, packed, size: int):
 
     if len(packed.data) > size:
         scale = 1.0
+        smallest = (result, packed)
         for _ in range(BAND_COARSER_TRIES):  # coarser until it fits
             scale *= BAND_STEP_FACTOR
+            if scaled(quant, scale) == scaled(quant, scale / BAND_STEP_FACTOR):
+                break  # every step at the container's largest: nothing coarser to try
             trial, trial_packed = requantized(scale)
             if len(trial_packed.data) <= size:
                 return trial, trial_packed
-        return result, packed
+            if len(trial_packed.data) < len(smallest[1].data):
+                smallest = (trial, trial_packed)
+        return smallest
     best = (result, packed)
     scale = 1.0
     for _ in range(BAND_FINER_TRIES):  # finer while it still fits, until above the floor
