@@ -102,7 +102,7 @@ def test_clean_closed_inputs_keep_every_face():
     slot = manifold3d.Manifold.cube((1.2, 0.02, 0.8), center=True).translate((0.3, 0.0, 0.2))
     slotted = scenes._arrays(box - slot)
     choice = choose_surface(normalize(slotted[0])[0], slotted[1], "auto")
-    assert choice.mode == "all" and choice.reason == "one closed surface"
+    assert choice.mode == "all" and choice.reason == "a consistently oriented surface, one closed part"
     disjoint = scenes.join(ball(0.4, (-0.5, 0, 0)), ball(0.4, (0.5, 0, 0)), ball(0.1, (0, 0.8, 0)))
     assert auto(disjoint)[0].mode == "all"
     box = scenes._arrays(manifold3d.Manifold.cube((1.0, 1.0, 1.0)))

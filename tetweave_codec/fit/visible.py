@@ -499,7 +499,7 @@ def choose_surface(vertices: np.ndarray, faces: np.ndarray, surface: str) -> Sur
         return SurfaceChoice("visible", f"--surface visible; {_describe(out)}", out)
     if n_closed and not parts.rest.any():
         if n_closed == 1:
-            return SurfaceChoice("all", "one closed surface")
+            return SurfaceChoice("all", "a consistently oriented surface, one closed part")
         union = closed_union(v, f, parts)
         dropped = max(0.0, 1.0 - union.area / union.parts_area)
         if dropped <= HIDDEN_AREA_SHARE:
