@@ -40,7 +40,6 @@ from pathlib import Path
 import numpy as np
 
 KINDS = ("cyl48", "cyl12", "boxes", "housing", "touching", "spot_cyl", "sheet")
-MESHES = Path(__file__).resolve().parent.parent.parent / "shared" / "meshes"  # common.DEFAULT_MESHES
 SAMPLES = 100_000
 DENSE = 400_000  # samples of the other side whose faces are the nearest-face candidates
 NEAREST = 8
@@ -78,9 +77,10 @@ def _tm(m, transform=None) -> tuple[np.ndarray, np.ndarray]:
 
 def _spot() -> tuple[np.ndarray, np.ndarray]:
     """spot, its bounding box into [-0.9, 0.9]^3 (closed, 23K faces)."""
+    from tetweave_codec.benchmarks.common import DEFAULT_MESHES
     from tetweave_codec.meshio import load_mesh, normalize
 
-    v, f = load_mesh(MESHES / "spot.ply")
+    v, f = load_mesh(DEFAULT_MESHES / "spot.ply")
     return normalize(v)[0], f
 
 
