@@ -55,8 +55,9 @@ setup(
         ),
         Extension(
             "tetweave_codec.geometry._delaunay_native",
-            ["tetweave_codec/geometry/_delaunay_native.c"],
-            depends=["tetweave_codec/geometry/_native_sort.h"],
+            ["tetweave_codec/geometry/_delaunay_native.c", "decoder/delaunay.c", "decoder/common.c"],
+            include_dirs=["decoder"],
+            depends=["decoder/internal.h", "decoder/tetweave_decoder.h", "decoder/radix.h"],
             extra_compile_args=FLAGS,
             optional=False,
         ),
