@@ -56,6 +56,75 @@ typedef struct tw_file {
 int tw_parse(const unsigned char *data, size_t size, tw_file *file, tw_error *err);
 void tw_file_free(tw_file *file);
 
+/* ---- positions, s prediction, dequantization (octree.c, predict.c, dequantize.c; container.c: tw_parse) ---- */
+
+/* The positions section (formats/octree.py decode; formats/README.md "Positions section" and "...,
+ * context-coded"): `size` bytes of models and words, b = bits (6..16), n >= 1 points expected, contexts = flags
+ * bit 2. cells: n * 3 int32 out, the leaves in canonical (Morton) order. TW_ERROR_INVALID for a malformed
+ * section (models short or bad, words not a multiple of 4, a level with more than n children, not n leaves),
+ * TW_ERROR_MEMORY. Allocates O(n) working memory, never more than the n the header announced. */
+int tw_decode_octree(const unsigned char *section, size_t size, int bits, uint32_t n, int contexts, int32_t *cells,
+                     tw_error *err);
+
+/* formats/quantize.py's dequantizers, binary64 with one rounding per operation as written:
+ * positions x = ((2k + 1 - 2^b) * 1.2) / 2^b (n * 3 values); s = (k + 0.5) * step; c_j = k_j * c_steps[floor(sqrt j)]
+ * (n * q values, row-major). */
+void tw_dequantize_positions(const int32_t *cells, size_t n, int bits, double *points);
+void tw_dequantize_s(const int32_t *k, size_t n, double step, double *s);
+void tw_dequantize_c(const int32_t *k, size_t n, int sh_degree, const double *band_steps, double *c);
+
+/* The s prediction (formats/predict.py; formats/README.md "s section, predicted"). */
+#define TW_PREDICT_K 8                       /* neighbours per point (K_NEIGHBORS) */
+#define TW_PREDICT_MAX_K 64                  /* largest k the kernels accept */
+#define TW_PREDICT_COORD_BITS 16             /* cells below 2^16 per axis */
+#define TW_PREDICT_BOUND_RANK 4096           /* QUERY_WIDTHS[-1] */
+#define TW_PREDICT_MAX_CANDIDATES (1 << 16)  /* GRID_MAX_CANDIDATES: the grid search's work bound per level */
+#define TW_PREDICT_RIDGE 0.1                 /* RIDGE_ABSOLUTE */
+#define TW_PREDICT_RESIDUAL_BOUND ((int64_t)1 << 40) /* _RESIDUAL_BOUND */
+#define TW_PREDICT_SYMBOL_LIMIT ((int64_t)1 << 20)   /* s symbols lie in [-2^20, 2^20 - 1] */
+
+/* Morton code of a cell (x, y, z < 2^16; quantize.morton_keys). */
+uint64_t tw_morton_key(uint64_t x, uint64_t y, uint64_t z);
+/* predict._first_level: the finest level whose occupied cells hold 4 points on average (or one cell). */
+int tw_predict_first_level(const int64_t *morton, int64_t n);
+
+/* The causal neighbour search of predict.causal_neighbors (row kernels shared with formats/_native.c).
+ * begin: cells (n * 3 int64, each in [0, 2^16)) with their Morton codes (n, strictly ascending), k neighbours
+ * (1..TW_PREDICT_MAX_K), the bound rank (QUERY_WIDTHS[-1]), the first level (0..16) and the work cap (candidates
+ * per level). TW_OK, TW_ERROR_ARGUMENT (a parameter or cell out of range, cells not in canonical order) or
+ * TW_ERROR_MEMORY; the arrays must outlive the search. row: rows i in ascending order; writes idx[0..k) (-1 where
+ * missing) and d2[0..k) (0 there) sorted by (d2, index) and returns 0, or returns 1 when the point's block exceeds
+ * the cap (nothing written: the caller's fallback answers it), or -TW_ERROR_MEMORY. */
+typedef struct tw_neighbor_search tw_neighbor_search;
+int tw_neighbors_begin(tw_neighbor_search **search, const int64_t *cells, const int64_t *morton, int64_t n,
+                       int64_t k, int64_t bound_rank, int first_level, int64_t cap);
+int tw_neighbors_row(tw_neighbor_search *search, int64_t i, int64_t *idx, int64_t *d2);
+void tw_neighbors_end(tw_neighbor_search *search);
+
+/* The exact answer for the rows over the work cap (predict._tree_rows: the k nearest earlier points among those
+ * closer than the bound_rank-th nearest point), by a bounding-box hierarchy over the Morton-ordered cells (the
+ * same cells as the search, which checked them). O(bound_rank log bound_rank) per query on any point set. */
+typedef struct tw_point_tree tw_point_tree;
+int tw_point_tree_build(tw_point_tree **tree, const int64_t *cells, int64_t n);
+int tw_point_tree_neighbors(tw_point_tree *tree, int64_t i, int64_t k, int64_t bound_rank, int64_t *idx,
+                            int64_t *d2); /* TW_OK, TW_ERROR_ARGUMENT, TW_ERROR_MEMORY */
+void tw_point_tree_free(tw_point_tree *tree);
+
+/* predict.predictor_weights of one row: beta[0..k) from the row's neighbours idx / d2 (ridge factor
+ * TW_PREDICT_RIDGE). 0, or -1 for a neighbour index outside [-1, n) or a distance <= 0 (nothing meaningful). */
+int tw_predict_weights_row(const int64_t *cells, int64_t n, int64_t i, const int64_t *idx, const int64_t *d2,
+                           int64_t k, double ridge_factor, double *beta);
+/* One step of the sequential pass: a = sum of beta * u over the row's slots in order (u of earlier points),
+ * *sym = floor(clamp(a, lo, hi)) + clamp(residual, +-bound); *sum (if not NULL) receives a. 0; 1 when a is NaN;
+ * 2 when a neighbour index is not an earlier point (outside [-1, i)). */
+int tw_predict_symbol(int64_t i, const int64_t *idx, const double *beta, int64_t k, const double *u, double lo,
+                      double hi, int64_t residual, int64_t bound, int64_t *sym, double *sum);
+
+/* The decoder core's whole prediction: cells (n * 3 int32, the octree's leaves) and the residuals of the s
+ * section (tw_decode_s_residuals) -> the s symbols (n int32). TW_ERROR_INVALID for a symbol outside
+ * [-2^20, 2^20) (attributes.decode_s_predicted's check), TW_ERROR_MEMORY; O(n) memory. */
+int tw_predict_s(const int32_t *cells, size_t n, const int32_t *residual, int32_t *symbols, tw_error *err);
+
 /* ---- surfaces -------------------------------------------------------------------------------------------- */
 
 /* A triangle mesh owned by the core: vertices v (nv * 3 doubles), faces f (nf * 3 int32). */
