@@ -22,6 +22,7 @@ _SUBCOMMANDS = {
     "decode": "tetweave_codec.cli.decode:decode",
     "info": "tetweave_codec.cli.info:info",
     "render": "tetweave_codec.cli.render:render",
+    "view": "tetweave_codec.cli.view:view",
     "bench": "tetweave_codec.cli.bench:bench",
 }
 

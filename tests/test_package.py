@@ -17,7 +17,7 @@ REPO = Path(__file__).resolve().parent.parent
 
 # Folders of the checkout that are installed under the tetweave_codec namespace (pyproject's package-dir mapping):
 # walk_packages does not find them through tetweave_codec.__path__ in an editable install, so they are walked too.
-MAPPED = ("tetweave_codec.cli", "tetweave_codec.formats", "tetweave_codec.benchmarks")
+MAPPED = ("tetweave_codec.cli", "tetweave_codec.formats", "tetweave_codec.benchmarks", "tetweave_codec.web")
 
 
 def _all_modules() -> list[str]:
