@@ -1,7 +1,7 @@
 """Build of the optional C extensions (the rest of the metadata is in pyproject.toml).
 
-* `tetweave_codec.formats._native` (formats/_native.c): the s prediction's decoder loops; formats/predict.py is
-  the reference.
+* `tetweave_codec.formats._native` (formats/_native.c, a binding over the decoder core's decoder/predict.c): the s
+  prediction's decoder loops; formats/predict.py is the reference.
 * `tetweave_codec.geometry._mt_native` (tetweave_codec/geometry/_mt_native.c): the integer topology of marching
   tets; geometry/marching_tets.py is the reference.
 * `tetweave_codec.geometry._intersect_native` (tetweave_codec/geometry/_intersect_native.c): the self-intersection
@@ -31,7 +31,14 @@ THREAD_FLAGS = [] if sys.platform == "win32" else ["-pthread"]
 
 setup(
     ext_modules=[
-        Extension("tetweave_codec.formats._native", ["formats/_native.c"], extra_compile_args=FLAGS, optional=True),
+        Extension(
+            "tetweave_codec.formats._native",
+            ["formats/_native.c", "decoder/predict.c", "decoder/common.c"],
+            include_dirs=["decoder"],
+            depends=["decoder/internal.h", "decoder/tetweave_decoder.h"],
+            extra_compile_args=FLAGS,
+            optional=True,
+        ),
         Extension(
             "tetweave_codec.geometry._mt_native",
             ["tetweave_codec/geometry/_mt_native.c"],

@@ -496,7 +496,7 @@ int tw_predict_weights_row(const int64_t *cells, int64_t n, int64_t i, const int
     const int64_t *p = cells + 3 * i;
     double d[TW_PREDICT_MAX_K][3], w[TW_PREDICT_MAX_K], e[TW_PREDICT_MAX_K][3];
     int64_t have[TW_PREDICT_MAX_K], h = 0;
-    if (k < 1 || k > TW_PREDICT_MAX_K) return -1;
+    if (k < 0 || k > TW_PREDICT_MAX_K) return -1;
     for (int64_t m = 0; m < k; m++) {
         int64_t j = row[m];
         beta[m] = 0.0;
