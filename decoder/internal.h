@@ -161,4 +161,79 @@ void tw_tets_free(tw_tets *tz);
 /* geometry/delaunay.py snap_to_lattice: n float points (n * 3 doubles, finite) -> cells (n * 3 int32). */
 int tw_snap_to_lattice(const double *points, size_t n, int32_t *cells, tw_error *err);
 
+/* ---- range coder (range.c) and the s, c and holes sections (attributes.c, holes_section.c) ---------------- */
+/* formats/README.md, "Entropy coder", specifies the decoder these functions implement; every function returns
+ * TW_OK or a tw_status set through tw_fail (a stream that does not decode is TW_ERROR_INVALID). */
+
+#define TW_RANGE_PRECISION 24            /* probabilities in units of 2^-24 */
+#define TW_MODEL_MAX_SYMBOLS 255         /* largest alphabet of a model (a stored histogram has <= 255 bytes) */
+
+/* A range decoder over little-endian uint32 words (any alignment); words past the end read as zero. */
+typedef struct tw_range {
+    const unsigned char *words; /* word i is bytes [4i, 4i + 4) */
+    size_t word_count;
+    size_t next;                /* the next word to read */
+    uint64_t lower, range, point;
+    const char *what;           /* the stream's name in messages ("s", "c", "holes", "positions") */
+} tw_range;
+
+/* A categorical model over symbols 0..size-1: symbol i covers quantiles [cum[i], cum[i + 1]), cum[0] = 0,
+ * cum[size] = 2^24, strictly increasing (every symbol has probability >= 2^-24). */
+typedef struct tw_model {
+    int size;
+    uint32_t cum[TW_MODEL_MAX_SYMBOLS + 1];
+} tw_model;
+
+/* Start a decoder on word_count words at `words` (reads the first two). */
+void tw_range_start(tw_range *rc, const unsigned char *words, size_t word_count, const char *what);
+/* Start a decoder on a section's word part of `size` bytes; TW_ERROR_INVALID unless size is a multiple of 4. */
+int tw_range_open(tw_range *rc, const unsigned char *bytes, size_t size, const char *what, tw_error *err);
+
+/* Models from integer weights w (a of them, 2..255, each >= 0, sum 2^24 - a), from a stored uint8 histogram
+ * (formats/entropy.py histogram_weights), from a binary-model byte v (1..255: P(1) = v / 256), and the uniform
+ * model over a symbols. A bad model is TW_ERROR_INVALID. */
+int tw_model_weights(tw_model *m, const int64_t *w, size_t a, tw_error *err);
+int tw_model_histogram(tw_model *m, const unsigned char *v, size_t a, tw_error *err);
+int tw_model_binary(tw_model *m, int v, tw_error *err);
+int tw_model_uniform(tw_model *m, size_t a, tw_error *err);
+
+/* One symbol with model m; one bit with the binary model of byte v (1..255; 128 is the fair bit). */
+int tw_range_decode(tw_range *rc, const tw_model *m, int *symbol, tw_error *err);
+int tw_range_decode_bit(tw_range *rc, int v, int *bit, tw_error *err);
+/* `count` symbols of model m, or bits of binary model v, into out[0..count). */
+int tw_range_decode_symbols(tw_range *rc, const tw_model *m, size_t count, uint8_t *out, tw_error *err);
+int tw_range_decode_bits(tw_range *rc, int v, size_t count, uint8_t *out, tw_error *err);
+/* Raw bits (entropy.Reader.decode_raw): values[i] gets nbits[i] (0..32) fair bits, most significant first, coded
+ * by bit plane: plane p = max(nbits) - 1 .. 0 codes bit p of every i with nbits[i] > p, in index order. */
+int tw_range_decode_raw(tw_range *rc, const uint8_t *nbits, size_t count, uint32_t *values, tw_error *err);
+/* Grouped by context (entropy.Reader.decode_grouped): the symbols with ctx[i] == 0 in index order with
+ * models[0], then ctx 1 with models[1], ...; an i whose ctx is >= model_count is not coded and gets 0. */
+int tw_range_decode_grouped(tw_range *rc, const uint8_t *ctx, size_t count, const tw_model *models,
+                            int model_count, uint8_t *out, tw_error *err);
+
+/* A cursor over the model bytes at the start of a section (formats/attributes.py _Models): take `count` bytes
+ * (TW_ERROR_INVALID "the <what> models are truncated" past the end), or one stored histogram (a length byte A in
+ * 2..max_alphabet, then A bytes) as a model. */
+typedef struct tw_models {
+    const unsigned char *data;
+    size_t size, pos;
+    const char *what;
+} tw_models;
+int tw_models_take(tw_models *c, size_t count, const unsigned char **bytes, tw_error *err);
+int tw_models_histogram(tw_models *c, size_t max_alphabet, tw_model *m, tw_error *err);
+
+/* The s section, flags bit 1 = 0 (formats/attributes.py decode_s): k[0..n) the s symbols, in [-2^20, 2^20). */
+int tw_decode_s(const unsigned char *section, size_t size, uint32_t n, int32_t *k, tw_error *err);
+/* The s section, flags bit 1 = 1: the residuals r[0..n) (|r| < 2^22) of "s section, predicted"; predict.c turns
+ * them into symbols (formats/attributes.py decode_s_predicted = these residuals, then predict.reconstruct and its
+ * range check). n = 0 needs an empty section. */
+int tw_decode_s_residuals(const unsigned char *section, size_t size, uint32_t n, int32_t *r, tw_error *err);
+/* The c section (decode_c): k[0..n*q) row-major (n, q), q = (sh_degree + 1)^2, each |k| <= 2^15.
+ * n = 0 or q = 0 needs an empty section (k may then be NULL). */
+int tw_decode_c(const unsigned char *section, size_t size, uint32_t n, int sh_degree, int32_t *k, tw_error *err);
+/* The holes section (formats/holes.py decode_holes) of a file of n points: *ranks receives a malloc'ed array of
+ * *count (1..64 * max(n, 1)) strictly increasing face ranks < 2^32 (the caller frees it); NULL / 0 on failure. */
+int tw_decode_holes(const unsigned char *section, size_t size, uint32_t n, int64_t **ranks, size_t *count,
+                    tw_error *err);
+
 #endif /* TETWEAVE_INTERNAL_H */

@@ -1,0 +1,82 @@
+/*
+ * holes_section.c -- the holes section of `.tw` version 2, flags bit 7 (formats/README.md "Holes"; reference
+ * formats/holes.py decode_holes, whose ranks this reproduces exactly).
+ *
+ * K is bounded by 64 * max(N, 1) before anything is allocated; the allocation is then 14 bytes per listed face
+ * (buckets, raw bit counts, gaps, ranks).
+ */
+#include <stdint.h>
+#include <stdlib.h>
+
+#include "internal.h"
+
+#define GAP_BUCKETS 33                  /* bit_length(g) for gaps g < 2^32 */
+#define MAX_RANK 0xffffffffu            /* ranks are < 2^32 */
+#define MAX_HOLE_FACES_PER_POINT 64u    /* K <= 64 * max(N, 1) (formats/holes.py max_hole_faces) */
+
+/* Whether `count` elements of `size` bytes are addressable (a 32-bit size_t on wasm32 bounds K). */
+static int fits(uint64_t count, size_t size) {
+    return count <= (uint64_t)(SIZE_MAX / size);
+}
+
+/*
+ * tw_decode_holes -- the holes section (`size` bytes at `section`) of a file of n points: uint32 K, a histogram
+ * (A <= 33), then the words: K gap buckets, the raw bits below each leading one. r_0 = g_0,
+ * r_i = r_{i-1} + 1 + g_i. On success *ranks is a malloc'ed array of *count = K ranks (the caller frees it).
+ * Errors: TW_ERROR_INVALID (truncated, K outside 1..64 max(n, 1), bad model, a stream that does not decode, a
+ * rank >= 2^32), TW_ERROR_MEMORY / TW_ERROR_LIMIT (allocation); *ranks is then NULL and *count 0.
+ */
+int tw_decode_holes(const unsigned char *section, size_t size, uint32_t n, int64_t **ranks, size_t *count,
+                    tw_error *err) {
+    *ranks = NULL;
+    *count = 0;
+    if (size < 4) return tw_fail(err, TW_ERROR_INVALID, "invalid .tw payload: the holes section is truncated");
+    uint32_t k = (uint32_t)section[0] | (uint32_t)section[1] << 8 | (uint32_t)section[2] << 16 |
+                 (uint32_t)section[3] << 24;
+    uint64_t bound = (uint64_t)MAX_HOLE_FACES_PER_POINT * (n ? n : 1);
+    if (k < 1 || k > bound)
+        return tw_fail(err, TW_ERROR_INVALID, "invalid .tw payload: %lu hole faces for %lu points",
+                       (unsigned long)k, (unsigned long)n);
+    tw_models mc = {section + 4, size - 4, 0, "holes"};
+    tw_model hist;
+    if (tw_models_histogram(&mc, GAP_BUCKETS, &hist, err)) return TW_ERROR_INVALID;
+    tw_range rc;
+    if (tw_range_open(&rc, section + 4 + mc.pos, size - 4 - mc.pos, "holes", err)) return TW_ERROR_INVALID;
+    if (!fits(k, sizeof(int64_t)))
+        return tw_fail(err, TW_ERROR_LIMIT, "the holes section lists too many faces for this platform");
+
+    size_t kk = k;
+    uint8_t *e = malloc(kk), *nbits = malloc(kk);
+    uint32_t *gap = malloc(kk * sizeof *gap);
+    int64_t *r = malloc(kk * sizeof *r);
+    int status = TW_OK;
+    if (!e || !nbits || !gap || !r) {
+        status = tw_fail(err, TW_ERROR_MEMORY, "out of memory decoding the holes section");
+        goto done;
+    }
+    if ((status = tw_range_decode_symbols(&rc, &hist, kk, e, err))) goto done;
+    for (size_t i = 0; i < kk; i++) nbits[i] = (uint8_t)(e[i] > 1 ? e[i] - 1 : 0);
+    if ((status = tw_range_decode_raw(&rc, nbits, kk, gap, err))) goto done;
+    int64_t rank = -1;
+    for (size_t i = 0; i < kk; i++) {
+        /* e <= 32: the gap 2^(e-1) + rest is < 2^32; the ranks only grow, so checking each is checking the last */
+        uint64_t g = e[i] >= 1 ? ((uint64_t)1 << (e[i] - 1)) + gap[i] : 0;
+        rank += (int64_t)g + 1;
+        if (rank > (int64_t)MAX_RANK) {
+            status = tw_fail(err, TW_ERROR_INVALID, "invalid .tw payload: hole face rank out of range");
+            goto done;
+        }
+        r[i] = rank;
+    }
+done:
+    free(e);
+    free(nbits);
+    free(gap);
+    if (status) {
+        free(r);
+        return status;
+    }
+    *ranks = r;
+    *count = kk;
+    return TW_OK;
+}
