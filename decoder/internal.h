@@ -236,4 +236,129 @@ int tw_decode_c(const unsigned char *section, size_t size, uint32_t n, int sh_de
 int tw_decode_holes(const unsigned char *section, size_t size, uint32_t n, int64_t **ranks, size_t *count,
                     tw_error *err);
 
+/* ---- filter: crossing checks, Taubin, creases, Loop, restores, holes (intersect.c, filter.c, loop.c, holes.c) - */
+
+/* Crossing checks (intersect.c; geometry/intersections.py self_intersecting_faces is the reference). v: nv * 3
+ * doubles; f: nf * 3 indices; only: nf bytes (nonzero = marked: only pairs with a marked face are tested; NULL in
+ * tw_self_intersecting = every face); flags: nf bytes out (1 = the face crosses or touches another). threads: 1 =
+ * the calling thread, more = that many pthreads (the same flags on any count; none without pthreads). */
+int tw_crossings_grid(const double *v, size_t nv, const int32_t *f, size_t nf, const uint8_t *only, int threads,
+                      uint8_t *flags); /* 0 done, 1 no feasible grid, -1 out of memory; indices trusted */
+int tw_crossings_marked(const double *v, size_t nv, const int32_t *f, size_t nf, const uint8_t *only, int threads,
+                        uint8_t *flags); /* 0 decided, 2 undecided (flags 0), -1 out of memory; indices trusted */
+int tw_crossings_stars(const double *v, size_t nv, const int32_t *f, size_t nf, const uint8_t *only, int children,
+                       int threads, uint8_t *flags); /* as marked; children 1 or 4 (runs of Loop children) */
+int tw_self_intersecting(const double *v, size_t nv, const int32_t *f, size_t nf, const uint8_t *only, int children,
+                         int threads, uint8_t *flags); /* 0 done, 1 no feasible grid, -1 memory, -2 bad index */
+
+/* Taubin, creases (filter.c; geometry/smoothing.py). rows: ne directed edges (a, b) as 2 * ne int32. */
+#define TW_TAUBIN_LAMBDA 0.5
+#define TW_TAUBIN_MU (-0.53)
+#define TW_CREASE_COS 0.8660254037844387
+#define TW_MAX_CHECKS 16
+/* `steps` Taubin steps of v (nv * 3, in place) over the directed rows (sorted by (a, b): smoothing.taubin's
+ * neighbour order). 0, or -1 out of memory (v unchanged). Indices trusted. */
+int tw_taubin(double *v, size_t nv, const int32_t *rows, size_t ne, int steps, double lam, double mu);
+
+/* The half-edges of a closed, consistently oriented 2-manifold, sorted by (a, b) (smoothing.mesh_edges(f, nv,
+ * closed=True)): *rows (2 * 3nf int32, malloc'd) and, per row, its face (*face_of, 3nf int32) and its twin's row
+ * (*twin, 3nf int32); NULL for any not wanted. 0; 1 when the faces are not such a manifold (or an index is out of
+ * range), -1 out of memory (nothing allocated on failure). */
+int tw_half_edges(const int32_t *f, size_t nf, size_t nv, int32_t **rows, int32_t **face_of, int32_t **twin);
+
+/* smoothing.crease_edges of a closed manifold: sharp (3nf bytes) per row of tw_half_edges. 0, or -1 memory. */
+int tw_crease_rows(const double *v, const int32_t *f, size_t nf, const int32_t *face_of, const int32_t *twin,
+                   double cosine, uint8_t *sharp);
+
+/* One Loop level of v and one midpoint level of r on the same faces (subdivision.py loop_level / _apply_level; a
+ * closed manifold). rows: tw_half_edges(f) (checked again here); crease: NULL (Loop's rules) or one byte per
+ * undirected edge (ascending (a, b), a < b: subdivision's edge order), the crease rules. out_v, out_r:
+ * (nv + 3nf/2) * 3 doubles; out_f: 4nf * 3 int32; out_ends: NULL, or 2 * 3nf/2 int32, each edge's ends (a < b).
+ * r may be NULL (no reference; out_r is then not written).
+ * 0; 1 not a closed manifold (nothing meaningful written); -1 out of memory. */
+int tw_loop_level(const double *v, const double *r, size_t nv, const int32_t *f, size_t nf, const int32_t *rows,
+                  const uint8_t *crease, double *out_v, double *out_r, int32_t *out_f, int32_t *out_ends);
+/* subdivision._child_creases: the next level's creases (nh / 2 bytes, ascending edges) from its sorted rows (nh)
+ * and the last level's vertex count, edge ends (out_ends of tw_loop_level), edge count and creases. */
+void tw_child_creases(const int32_t *rows, size_t nh, size_t parent_nv, const int32_t *parent_ends, size_t parent_ne,
+                      const uint8_t *parent_crease, uint8_t *out);
+
+/* surface_filter.filter_surface: `smoothing` Taubin steps and `subdivision` Loop levels of the control surface
+ * (crease rules with `creases`), the output transform v * scale + offset (offset NULL: none), and the restore
+ * rounds of restore_crossings (at most TW_MAX_CHECKS checks; else the filter is dropped: *gave_up = 1, *restored
+ * = nv). out: a new surface (free with tw_surface_free). Errors: TW_ERROR_LIMIT (more than TW_MAX_FACES faces
+ * after subdivision), TW_ERROR_INVALID (the unfiltered surface crosses or touches itself, or cannot be checked),
+ * TW_ERROR_INTERNAL (not a closed, consistently oriented 2-manifold), TW_ERROR_MEMORY, TW_ERROR_ARGUMENT. */
+int tw_filter_surface(const tw_surface *control, int smoothing, int subdivision, int creases, double scale,
+                      const double offset[3], int threads, tw_surface *out, uint64_t *restored, int *gave_up,
+                      tw_error *err);
+
+/* holes.open_holes: remove the extracted faces whose canonical ranks are `ranks` (count of them, any order, each
+ * < extracted_count, else TW_ERROR_INVALID) with their `children` faces each from `closed` (closed->nf must be
+ * extracted_count * children: else TW_ERROR_ARGUMENT), keeping the used vertices in order. TW_ERROR_INVALID when
+ * a vertex of the extracted surface is left with two or more fans. out: a new surface. */
+int tw_open_holes(const tw_surface *closed, const int32_t *extracted, size_t extracted_count, const int64_t *ranks,
+                  size_t count, size_t children, tw_surface *out, tw_error *err);
+/* holes.face_ranks: rank (nf int64) of each face in the canonical order (sorted corners, lexicographic). */
+int tw_face_ranks(const int32_t *f, size_t nf, int64_t *ranks);
+
+/* ---- exact Delaunay and marching tets (delaunay.c, marching.c) ------------------------------------------- */
+
+/* The exact Delaunay's tets and hull faces (formats/README.md, "The exact Delaunay"): tets nt * 4 and hull
+ * nh * 3 int32 indices into the caller's cells, positively oriented / outward, in the canonical order; both NULL
+ * and 0 when there are fewer than 4 distinct or only coplanar points. Release with tw_tets_free. */
+typedef struct tw_tets {
+    size_t nt, nh;
+    int32_t *tets;
+    int32_t *hull;
+} tw_tets;
+
+#define TW_DELAUNAY_MAX_BITS 23         /* cell coordinates in [0, 2^23 - 1] */
+#define TW_DELAUNAY_MAX_POINTS (1 << 26)
+
+/* Tetrahedralize n cells (n * 3 int32, any integers in [0, 2^23)); duplicates: only the lowest index is a vertex.
+ * A file's grid cells (b bits) give the same arrays as their lattice points (tw_snap_to_lattice of the dequantized
+ * points, k -> k 2^(23-b) + 2^(22-b): one uniform scale and a translation, which keep every predicate's sign and
+ * every rank). Errors: TW_ERROR_ARGUMENT
+ * (coordinates out of range, n > 2^26), TW_ERROR_MEMORY, TW_ERROR_LIMIT (a degenerate set needing more than
+ * max(64 n + 4096, 2^22) tets), TW_ERROR_INTERNAL ("flat tet ...", "walk ..."; never expected). */
+int tw_delaunay(const int32_t *cells, size_t n, tw_tets *out, tw_error *err);
+void tw_tets_free(tw_tets *tz);
+/* geometry/delaunay.py snap_to_lattice: n float points (n * 3 doubles, finite) -> cells (n * 3 int32). */
+int tw_snap_to_lattice(const double *points, size_t n, int32_t *cells, tw_error *err);
+
+/* Marching tets' case tables, derived (marching.c): per case code, its active local edges in order (act, n_act),
+ * the position of each local edge among them (pos, -1: inactive) and its triangles as local edges (tri, n_tri). */
+typedef struct tw_mt_tables {
+    int n_act[16], act[16][6], pos[16][6], n_tri[16], tri[16][2][3];
+} tw_mt_tables;
+
+/* Marching tets' integer topology: nu unique active edges (lo[k] < hi[k], sorted by (lo, hi)), nf faces (nf * 3
+ * indices into the edges: per mixed tet in order, its table triangles in order) and the tet of each face. */
+typedef struct tw_mt_topo {
+    size_t nu, nf;
+    uint32_t *lo, *hi;
+    int32_t *faces;
+    int32_t *face_tets;
+} tw_mt_topo;
+
+/* The format's tanh (geometry/tanh.py): the same bits on every IEEE 754 platform, within 2 ulp of tanh. */
+double tw_tanh(double x);
+/* Derive tables from active (16 x 6, nonzero = active) and triangle (16 x 2 x 3 local edges, -1 none) int64
+ * arrays; TW_ERROR_ARGUMENT for an entry out of range or a triangle on an inactive edge. */
+int tw_mt_tables_init(tw_mt_tables *tables, const int64_t *active, const int64_t *triangle, tw_error *err);
+/* Topology of nt tets (nt * 4 indices < n, else TW_ERROR_ARGUMENT) for inside (n bytes, nonzero = s < 0).
+ * TW_ERROR_LIMIT: n > 2^31 or 2^32 active edge occurrences; TW_ERROR_MEMORY. Free with tw_mt_topology_free. */
+int tw_mt_topology(const int32_t *tets, size_t nt, const uint8_t *inside, size_t n, const tw_mt_tables *tables,
+                   tw_mt_topo *out, tw_error *err);
+void tw_mt_topology_free(tw_mt_topo *topo);
+/* marching_tets.check_manifold: *defect 0 ok, 1 degenerate triangle, 2 directed edge used twice, 3 (closed) edge
+ * without its twin. Indices >= nv or nv > 2^31: TW_ERROR_ARGUMENT. */
+int tw_manifold_defect(const int32_t *faces, size_t nf, size_t nv, int closed, int *defect, tw_error *err);
+/* The control surface (marching_tets_numpy(points, tz->tets, s, c, tz->hull) bit for bit): points n * 3, s n,
+ * c n * (sh_degree + 1)^2 (NULL when sh_degree is -1). out: a new surface (empty when s has one sign), closed,
+ * checked by tw_manifold_defect (a defect: TW_ERROR_INTERNAL with check_manifold's message). */
+int tw_marching_tets(const double *points, const double *s, const double *c, int sh_degree, size_t n,
+                     const tw_tets *tz, tw_surface *out, tw_error *err);
+
 #endif /* TETWEAVE_INTERNAL_H */

@@ -1,0 +1,1755 @@
+/*
+ * intersect.c -- the decoder core's crossing check (geometry/intersections.py `self_intersecting_faces` is the
+ * reference): which faces of a triangle mesh cross or touch another face, by the conservative predicate of
+ * formats/README.md "Crossing faces", with every binary64 operation in the reference's order (compile with
+ * -ffp-contract=off, no -ffast-math), so both flag the same faces.
+ *
+ * Entry points (declared in internal.h; vertices v (nv * 3 doubles), faces f (nf * 3 int32, every index in
+ * [0, nv): tw_self_intersecting checks it, the three ways below trust their caller), only (nf bytes, nonzero: the
+ * face is marked; only pairs with a marked face are tested), flags (nf bytes out, 1 = flagged)):
+ *
+ *   tw_crossings_grid    the full check: 0 done, 1 the candidate grid found no feasible cell size (the reference
+ *                        raises RuntimeError there), -1 out of memory.
+ *   tw_crossings_marked  for checks with few faces marked: 0 decided (exactly tw_crossings_grid's flags), 2
+ *                        undecided (flags all 0: run tw_crossings_grid), -1 out of memory.
+ *   tw_crossings_stars   for the first check of a Loop level's faces (runs of 4 children): 0 decided (the grid's
+ *                        flags), 2 undecided, -1 out of memory.
+ *   tw_self_intersecting intersections.self_intersecting_faces' compiled dispatch over the three (the Python
+ *                        binding's order, so the same work): 0 done, 1 infeasible, -1 out of memory, -2 an index
+ *                        out of range.
+ *
+ * Candidate pairs: every pair of valid faces whose bounding boxes overlap (closed intervals); the grid groups
+ * faces by the cells their boxes cover (cells sorted lexicographically by (x, y, z)) and tests a pair only in the
+ * cell of the larger of the two boxes' lower corners, so each pair once.
+ */
+#include <math.h>
+#include <stdint.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "internal.h"
+
+/* Integer helpers (as geometry/_native_sort.h; the core keeps its own copy, it never includes the package's). */
+#define RADIX_BITS 11
+
+static inline int bit_length(uint64_t v) {
+    int b = 0;
+    while (v) {
+        b++;
+        v >>= 1;
+    }
+    return b;
+}
+
+/* Sort a[0..m) ascending by its low `bits` bits (values below 2**bits); tmp: scratch of m items. */
+static void radix_sort(uint64_t *a, uint64_t *tmp, int64_t m, int bits) {
+    int64_t count[1 << RADIX_BITS];
+    uint64_t *src = a, *dst = tmp;
+    const uint64_t mask = (1u << RADIX_BITS) - 1;
+    for (int shift = 0; shift < bits; shift += RADIX_BITS) {
+        memset(count, 0, sizeof count);
+        for (int64_t i = 0; i < m; i++) count[(src[i] >> shift) & mask]++;
+        int64_t sum = 0;
+        for (uint64_t d = 0; d <= mask; d++) {
+            int64_t c = count[d];
+            count[d] = sum;
+            sum += c;
+        }
+        for (int64_t i = 0; i < m; i++) dst[count[(src[i] >> shift) & mask]++] = src[i];
+        uint64_t *t = src;
+        src = dst;
+        dst = t;
+    }
+    if (src != a) memcpy(a, src, (size_t)m * sizeof(uint64_t));
+}
+
+/* ------------------------------------------------------------------------------------------------------------
+ * Threads. Every entry point takes a thread count. With 1 nothing here runs: each loop is one call over its whole
+ * range on the calling thread, the single-threaded code. With more, the loops whose items are independent run in
+ * chunks on pthreads (the caller's thread among them), and the answer is the same bytes: the flags are an OR over
+ * the tested pairs (which thread tests a pair, and in which order, cannot change whether it crosses), written with
+ * relaxed atomic stores of 1 (a face flagged twice stays flagged); a skip that reads the flags ("both faces
+ * already flagged") only skips pairs that cannot add a flag. Sums are of integers (exact in any order), minima and
+ * maxima are merged in the serial loop's order, so every decision that depends on them is the serial one. Built
+ * with -DTW_NO_THREADS (wasm32) or on Windows, everything runs on the calling thread: same flags.
+ * ------------------------------------------------------------------------------------------------------------ */
+#if defined(TW_NO_THREADS) || defined(_WIN32)
+#define TW_THREADS 0
+#else
+#include <pthread.h>
+#define TW_THREADS 1
+#endif
+/* more workers than this are never started (a --threads far above the cores only adds start-up and contention) */
+#define MAX_WORKERS 64
+
+#if TW_THREADS
+#define FLAG_GET(p) __atomic_load_n((p), __ATOMIC_RELAXED)
+#define FLAG_SET(p) __atomic_store_n((p), (uint8_t)1, __ATOMIC_RELAXED)
+#else
+#define FLAG_GET(p) (*(p))
+#define FLAG_SET(p) (*(p) = 1)
+#endif
+
+/* fn(ctx, begin, end, worker) over the chunks [begin, end) of [0, n) */
+typedef void (*RangeFn)(void *ctx, int64_t begin, int64_t end, int worker);
+
+typedef struct {
+    RangeFn fn;
+    void *ctx;
+    int64_t n, chunk, next; /* next: the first item no worker has taken yet */
+} ForJob;
+
+typedef struct {
+    ForJob *job;
+    int worker;
+} ForArg;
+
+static void for_run(ForJob *job, int worker) {
+    for (;;) {
+#if TW_THREADS
+        int64_t b = __atomic_fetch_add(&job->next, job->chunk, __ATOMIC_RELAXED);
+#else
+        int64_t b = job->next;
+        job->next += job->chunk;
+#endif
+        if (b >= job->n) return;
+        job->fn(job->ctx, b, b + job->chunk < job->n ? b + job->chunk : job->n, worker);
+    }
+}
+
+#if TW_THREADS
+static void *for_main(void *arg) {
+    ForArg *a = (ForArg *)arg;
+    for_run(a->job, a->worker);
+    return NULL;
+}
+#endif
+
+/* The workers a loop of n items in chunks of `chunk` gets from a thread count: at most one per chunk, at most
+ * MAX_WORKERS, at least 1. */
+static int workers_for(int threads, int64_t n, int64_t chunk) {
+    int64_t chunks = chunk > 0 ? (n + chunk - 1) / chunk : 1;
+    int64_t w = threads < 1 ? 1 : threads;
+    if (w > MAX_WORKERS) w = MAX_WORKERS;
+    if (w > chunks) w = chunks;
+    return w < 1 ? 1 : (int)w;
+}
+
+/* fn over [0, n) in chunks of `chunk` items, each chunk once, on `workers` threads (this one as worker 0; see
+ * workers_for), whichever is free taking the next chunk. One worker: fn(ctx, 0, n, 0), the serial loop. A thread
+ * that cannot be started leaves its chunks to the others. */
+static void parallel_for(int workers, int64_t n, int64_t chunk, RangeFn fn, void *ctx) {
+    if (n <= 0) return;
+    if (workers <= 1 || chunk <= 0 || n <= chunk) {
+        fn(ctx, 0, n, 0);
+        return;
+    }
+    ForJob job = {fn, ctx, n, chunk, 0};
+#if TW_THREADS
+    pthread_t tid[MAX_WORKERS];
+    ForArg args[MAX_WORKERS];
+    int started[MAX_WORKERS];
+    for (int w = 1; w < workers && w < MAX_WORKERS; w++) {
+        args[w].job = &job;
+        args[w].worker = w;
+        started[w] = pthread_create(&tid[w], NULL, for_main, &args[w]) == 0;
+    }
+    for_run(&job, 0);
+    for (int w = 1; w < workers && w < MAX_WORKERS; w++)
+        if (started[w]) pthread_join(tid[w], NULL);
+#else
+    for_run(&job, 0);
+#endif
+}
+
+/* The chunk that splits n items into `workers` contiguous blocks (block b = [b chunk, (b + 1) chunk)): loops whose
+ * per-block results are merged in block order afterwards. */
+static int64_t block_chunk(int64_t n, int workers) {
+    return workers > 1 ? (n + workers - 1) / workers : (n > 0 ? n : 1);
+}
+
+#define MAX_CANDIDATE_PAIRS 30000000LL
+/* `marked` counts the faces per cell of the first grid in a dense array of at most this many cells (2 bytes each) */
+#define MAX_DENSE_CELLS (1LL << 25)
+
+static int cmp_double(const void *a, const void *b) {
+    double x = *(const double *)a, y = *(const double *)b;
+    return (x > y) - (x < y);
+}
+
+/* The k-th smallest of a[0..n) (0-based), moving every smaller value before position k: Hoare's selection, O(n)
+ * expected instead of a full qsort (30 ms of a 320K-face check). After 64 rounds (an adversarial order) the rest
+ * is sorted, so the worst case stays O(n log n). */
+static double kth_smallest(double *a, int64_t n, int64_t k) {
+    int64_t lo = 0, hi = n - 1;
+    for (int round = 0; lo < hi; round++) {
+        if (round == 64) {
+            qsort(a + lo, (size_t)(hi - lo + 1), sizeof(double), cmp_double);
+            return a[k];
+        }
+        double pivot = a[lo + (hi - lo) / 2];
+        int64_t i = lo, j = hi;
+        while (i <= j) {
+            while (a[i] < pivot) i++;
+            while (a[j] > pivot) j--;
+            if (i <= j) {
+                double t = a[i];
+                a[i] = a[j];
+                a[j] = t;
+                i++;
+                j--;
+            }
+        }
+        if (k <= j)
+            hi = j;
+        else if (k >= i)
+            lo = i;
+        else
+            return a[k];
+    }
+    return a[k];
+}
+
+/* The reference's first cell size: 2 * median(ext[0..n)) (numpy's median: the mean of the two middle values for
+ * even n), or the largest extent where that is not > 0, or 1. Clobbers `sorted` (n items). */
+static double first_cell(const double *ext, double *sorted, int64_t n) {
+    memcpy(sorted, ext, sizeof(double) * (size_t)n);
+    double upper = kth_smallest(sorted, n, n / 2), median = upper;
+    if (n % 2 == 0) { /* the largest value before position n / 2 is the (n / 2 - 1)-th smallest */
+        double lower = sorted[0];
+        for (int64_t i = 1; i < n / 2; i++)
+            if (sorted[i] > lower) lower = sorted[i];
+        median = (lower + upper) / 2.0;
+    }
+    double cell = 2.0 * median;
+    if (!(cell > 0)) {
+        cell = sorted[0];
+        for (int64_t i = 1; i < n; i++)
+            if (sorted[i] > cell) cell = sorted[i];
+        if (cell == 0) cell = 1.0;
+    }
+    return cell;
+}
+
+static inline void sub3(const double *a, const double *b, double *r) {
+    r[0] = a[0] - b[0];
+    r[1] = a[1] - b[1];
+    r[2] = a[2] - b[2];
+}
+
+static inline void cross3(const double *u, const double *w, double *r) {
+    r[0] = u[1] * w[2] - u[2] * w[1];
+    r[1] = u[2] * w[0] - u[0] * w[2];
+    r[2] = u[0] * w[1] - u[1] * w[0];
+}
+
+static inline double dot3(const double *u, const double *w) { return (u[0] * w[0] + u[1] * w[1]) + u[2] * w[2]; }
+
+static inline double orient(const double *a, const double *b, const double *c, const double *d) {
+    double u[3], w[3], x[3], n[3];
+    sub3(b, a, u);
+    sub3(c, a, w);
+    sub3(d, a, x);
+    cross3(u, w, n);
+    return dot3(n, x);
+}
+
+static inline double cross2(const double *o, const double *a, const double *b) {
+    return (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0]);
+}
+
+/* The contact tolerances (the reference's TOUCH_3D, TOUCH_2D): with m the pair's scale, an orientation within
+ * TOUCH_3D m^3 and a 2-D cross product within TOUCH_2D m^2 count as zero (contact); see intersections.py. */
+#define TOUCH_3D 0x1p-43
+#define TOUCH_2D 0x1p-46
+
+/* Point p in the closed triangle t, up to tol2 on each 2-D cross product (the reference's _point_in_closed_2d). */
+static int point_in_closed_2d(const double *p, const double t[3][2], double tol2) {
+    int pos = 0, neg = 0;
+    for (int i = 0; i < 3; i++) {
+        double d = cross2(t[i], t[(i + 1) % 3], p);
+        pos |= d > tol2;
+        neg |= d < -tol2;
+    }
+    return !(pos && neg);
+}
+
+/* Closed segments pq and rs meet, up to tol2, and their boxes overlap (the reference's _segments_touch_2d). */
+static int segments_touch_2d(const double *p, const double *q, const double *r, const double *s, double tol2) {
+    double d1 = cross2(p, q, r), d2 = cross2(p, q, s);
+    if ((d1 > tol2 && d2 > tol2) || (d1 < -tol2 && d2 < -tol2)) return 0;
+    double d3 = cross2(r, s, p), d4 = cross2(r, s, q);
+    if ((d3 > tol2 && d4 > tol2) || (d3 < -tol2 && d4 < -tol2)) return 0;
+    for (int k = 0; k < 2; k++) { /* and the boxes overlap on both axes (settles nearly collinear segments) */
+        double lo = fmax(fmin(p[k], q[k]), fmin(r[k], s[k]));
+        double hi = fmin(fmax(p[k], q[k]), fmax(r[k], s[k]));
+        if (!(lo <= hi)) return 0;
+    }
+    return 1;
+}
+
+/* Segment pq and triangle abc (normal n) projected to the coordinate plane that drops the first axis of largest
+ * |n|: they meet there, up to tol2 (the reference's _segment_touches_in_plane). */
+static int segment_touches_in_plane(const double *p, const double *q, const double *a, const double *b,
+                                    const double *c, const double *n, double tol2) {
+    static const int KEEP[3][2] = {{1, 2}, {0, 2}, {0, 1}};
+    int axis = 0;
+    double m = fabs(n[0]);
+    if (fabs(n[1]) > m) {
+        axis = 1;
+        m = fabs(n[1]);
+    }
+    if (fabs(n[2]) > m) axis = 2;
+    const int *keep = KEEP[axis];
+    double p2[2] = {p[keep[0]], p[keep[1]]}, q2[2] = {q[keep[0]], q[keep[1]]};
+    double t[3][2] = {{a[keep[0]], a[keep[1]]}, {b[keep[0]], b[keep[1]]}, {c[keep[0]], c[keep[1]]}};
+    if (point_in_closed_2d(p2, t, tol2) || point_in_closed_2d(q2, t, tol2)) return 1;
+    for (int j = 0; j < 3; j++)
+        if (segments_touch_2d(p2, q2, t[j], t[(j + 1) % 3], tol2)) return 1;
+    return 0;
+}
+
+/* The closed segment pq meets the closed triangle abc (normal n) or comes within the tolerances of it, given
+ * sp = orient(a, b, c, p) and sq = orient(a, b, c, q) (the reference's _segment_touches_triangle). */
+static int segment_touches(double sp, double sq, double tol, double tol2, const double *p, const double *q,
+                           const double *a, const double *b, const double *c, const double *n) {
+    if ((sp > tol && sq > tol) || (sp < -tol && sq < -tol)) return 0;
+    if (!(fabs(sp) <= tol && fabs(sq) <= tol)) {
+        double s1 = orient(p, q, a, b), s2 = orient(p, q, b, c), s3 = orient(p, q, c, a);
+        int pos = s1 > tol || s2 > tol || s3 > tol, neg = s1 < -tol || s2 < -tol || s3 < -tol;
+        if (pos && neg) return 0;
+    }
+    /* a common point projects to a common point: the 2-D test decides what the orientations leave open */
+    return segment_touches_in_plane(p, q, a, b, c, n, tol2);
+}
+
+/* The largest span of the two boxes (min x, y, z, max x, y, z) on one axis: every |coordinate difference| of the
+ * pair is at most that (rounding is monotone), so a bound from it is at least the reference's. */
+static inline double pair_span(const double *box_a, const double *box_b) {
+    double span = 0;
+    for (int k = 0; k < 3; k++) {
+        double hi = box_a[3 + k] > box_b[3 + k] ? box_a[3 + k] : box_b[3 + k];
+        double lo = box_a[k] < box_b[k] ? box_a[k] : box_b[k];
+        if (hi - lo > span) span = hi - lo;
+    }
+    return span;
+}
+
+/* The reference's scale of a pair: the largest |coordinate difference| of the six vertices from b0. */
+static double pair_scale(const double *a[3], const double *b[3]) {
+    double scale_a = 0, scale_b = 0;
+    for (int i = 0; i < 3; i++)
+        for (int k = 0; k < 3; k++) {
+            double x = fabs(a[i][k] - b[0][k]), y = fabs(b[i][k] - b[0][k]);
+            if (x > scale_a) scale_a = x;
+            if (y > scale_b) scale_b = y;
+        }
+    return scale_a > scale_b ? scale_a : scale_b;
+}
+
+/* The reference's _pairs_intersect for one pair of faces fa < fb (their vertex indices; ta, tb their corners, 9
+ * coordinates each) with normals na, nb, each (x1 - x0) x (x2 - x0); box_a, box_b their boxes. orient(x0, x1, x2,
+ * y) is computed as n_x . (y - x0): the same operations in the same order as the reference's. nlen_a, nlen_b are
+ * not used (the tolerances are the pair's, not the faces'). */
+/* Whether one face's free corners (orientations o against the other face's plane) all lie beyond `limit` on one
+ * side of it, for either face: the pair is then apart. */
+static int one_side_apart(const double *oa, const double *ob, const int *free_a, const int *free_b, double limit) {
+    for (int side = 0; side < 2; side++) {
+        const double *o = side ? ob : oa;
+        const int *fr = side ? free_b : free_a;
+        int above = 1, below = 1;
+        for (int i = 0; i < 3; i++)
+            if (fr[i]) {
+                above &= o[i] > limit;
+                below &= o[i] < -limit;
+            }
+        if (above || below) return 1;
+    }
+    return 0;
+}
+
+static int pair_intersects(const double *ta, const double *tb, const int64_t *fa, const int64_t *fb,
+                           const double *na, const double *nb, const double *box_a, const double *box_b,
+                           double nlen_a, double nlen_b) {
+    (void)nlen_a;
+    (void)nlen_b;
+    /* bit j of m[i]: vertex i of a is vertex j of b (branch-free: most pairs are neighbours in a fan) */
+    int m0 = (fa[0] == fb[0]) | (fa[0] == fb[1]) << 1 | (fa[0] == fb[2]) << 2;
+    int m1 = (fa[1] == fb[0]) | (fa[1] == fb[1]) << 1 | (fa[1] == fb[2]) << 2;
+    int m2 = (fa[2] == fb[0]) | (fa[2] == fb[1]) << 1 | (fa[2] == fb[2]) << 2;
+    int free_a[3] = {m0 == 0, m1 == 0, m2 == 0}, used = m0 | m1 | m2;
+    int free_b[3] = {!(used & 1), !(used >> 1 & 1), !(used >> 2 & 1)};
+    if (free_a[0] + free_a[1] + free_a[2] < 2 || free_b[0] + free_b[1] + free_b[2] < 2) return 0;
+    const double *a[3], *b[3];
+    for (int i = 0; i < 3; i++) {
+        a[i] = ta + 3 * i;
+        b[i] = tb + 3 * i;
+    }
+    double d[3], oa[3], ob[3];
+    for (int i = 0; i < 3; i++) {
+        sub3(a[i], b[0], d);
+        oa[i] = dot3(nb, d); /* orient(b0, b1, b2, a_i) */
+        sub3(b[i], a[0], d);
+        ob[i] = dot3(na, d); /* orient(a0, a1, a2, b_i) */
+    }
+    /* apart when one face's free corners lie beyond tol on one side of the other's plane: first against the
+     * bound from the boxes' span (at least the pair's scale, so at least tol: the same decision), which settles
+     * most pairs without the scale */
+    double span = pair_span(box_a, box_b);
+    double wide = TOUCH_3D * span * span * span;
+    if (one_side_apart(oa, ob, free_a, free_b, wide)) return 0;
+    double scale = pair_scale(a, b);
+    double tol = TOUCH_3D * scale * scale * scale, tol2 = TOUCH_2D * scale * scale;
+    if (one_side_apart(oa, ob, free_a, free_b, tol)) return 0;
+    for (int i = 0; i < 3; i++) {
+        int j = (i + 1) % 3;
+        if (free_a[i] && free_a[j] && segment_touches(oa[i], oa[j], tol, tol2, a[i], a[j], b[0], b[1], b[2], nb))
+            return 1;
+    }
+    for (int i = 0; i < 3; i++) {
+        int j = (i + 1) % 3;
+        if (free_b[i] && free_b[j] && segment_touches(ob[i], ob[j], tol, tol2, b[i], b[j], a[0], a[1], a[2], na))
+            return 1;
+    }
+    return 0;
+}
+
+/* The reference's _grid_pairs decision for cell size `cell`: 0 feasible, 1 "coarser", 2 "finer", -1 out of memory,
+ * 3 the cell keys do not fit 64 bits (a degenerate spread of sizes; the caller treats it as a failure).
+ * On success *keys holds the sorted entries (cell key << face_bits | face), *count their number, c0 (n,3) the
+ * lower cell of each box. */
+static int grid(const double *lo, const double *hi, int64_t n, double cell, const double *origin, int64_t *c0,
+                uint64_t **keys, int64_t *count, int *face_bits, int64_t *dims) {
+    double limit = 64.0 * (double)n + 1000000.0, total_cells = 0;
+    dims[0] = dims[1] = dims[2] = 1;
+    for (int64_t i = 0; i < n; i++) {
+        double span = 1;
+        for (int k = 0; k < 3; k++) {
+            double a = floor((lo[3 * i + k] - origin[k]) / cell), b = floor((hi[3 * i + k] - origin[k]) / cell);
+            span *= b - a + 1;
+        }
+        total_cells += span;
+        if (total_cells > limit) return 1;
+    }
+    for (int64_t i = 0; i < n; i++)
+        for (int k = 0; k < 3; k++) {
+            c0[3 * i + k] = (int64_t)floor((lo[3 * i + k] - origin[k]) / cell);
+            int64_t c1 = (int64_t)floor((hi[3 * i + k] - origin[k]) / cell);
+            if (c1 + 1 > dims[k]) dims[k] = c1 + 1;
+        }
+    int fb = bit_length((uint64_t)n);
+    int cb = bit_length((uint64_t)dims[0]) + bit_length((uint64_t)dims[1]) + bit_length((uint64_t)dims[2]);
+    if (fb + cb > 63) return 3;
+    int64_t m = (int64_t)total_cells, t = 0;
+    uint64_t *e = (uint64_t *)malloc(sizeof(uint64_t) * (size_t)(m > 0 ? m : 1));
+    if (!e) return -1;
+    for (int64_t i = 0; i < n; i++) {
+        int64_t c1[3];
+        for (int k = 0; k < 3; k++) c1[k] = (int64_t)floor((hi[3 * i + k] - origin[k]) / cell);
+        for (int64_t x = c0[3 * i]; x <= c1[0]; x++)
+            for (int64_t y = c0[3 * i + 1]; y <= c1[1]; y++)
+                for (int64_t z = c0[3 * i + 2]; z <= c1[2]; z++)
+                    e[t++] = ((((uint64_t)x * (uint64_t)dims[1] + (uint64_t)y) * (uint64_t)dims[2] + (uint64_t)z)
+                              << fb) | (uint64_t)i;
+    }
+    uint64_t *tmp = (uint64_t *)malloc(sizeof(uint64_t) * (size_t)(t > 0 ? t : 1));
+    if (!tmp) {
+        free(e);
+        return -1;
+    }
+    radix_sort(e, tmp, t, fb + cb);
+    free(tmp);
+    long long pairs = 0;
+    for (int64_t s = 0; s < t;) {
+        int64_t r = s + 1;
+        while (r < t && (e[r] >> fb) == (e[s] >> fb)) r++;
+        long long size = r - s;
+        pairs += size * (size - 1) / 2;
+        if (pairs > MAX_CANDIDATE_PAIRS) {
+            free(e);
+            return 2;
+        }
+        s = r;
+    }
+    *keys = e;
+    *count = t;
+    *face_bits = fb;
+    return 0;
+}
+
+/* The closed box lo (3,), hi (3,) of triangle p0 p1 p2 and its extent, the longest side of the box: the grid's
+ * entries of `faces` and `marked_flags` alike. */
+static double face_box(const double *p0, const double *p1, const double *p2, double *lo, double *hi) {
+    double x = 0;
+    for (int k = 0; k < 3; k++) {
+        double a = p0[k], b = p1[k], d = p2[k];
+        double mn = a, mx = a;
+        if (b < mn) mn = b;
+        if (d < mn) mn = d;
+        if (b > mx) mx = b;
+        if (d > mx) mx = d;
+        lo[k] = mn;
+        hi[k] = mx;
+        if (k == 0 || mx - mn > x) x = mx - mn;
+    }
+    return x;
+}
+
+/* `faces`' first pass, over faces [begin, end): the valid ones' indices, normals, boxes and extents, written
+ * compacted from position `begin` of each array (block b's count in count[b]); the caller closes the gaps in
+ * block order, which gives the serial pass's arrays. */
+typedef struct {
+    const double *v;
+    const int32_t *f;
+    int64_t *valid, *count, chunk;
+    double *lo, *hi, *ext, *normal;
+} FacesPass;
+
+static void faces_pass(void *ctx, int64_t begin, int64_t end, int worker) {
+    (void)worker;
+    FacesPass *c = (FacesPass *)ctx;
+    const double *v = c->v;
+    const int32_t *f = c->f;
+    int64_t n = begin;
+    for (int64_t i = begin; i < end; i++) {
+        const double *p0 = v + 3 * f[3 * i], *p1 = v + 3 * f[3 * i + 1], *p2 = v + 3 * f[3 * i + 2];
+        double e1[3], e2[3], x[3];
+        sub3(p1, p0, e1);
+        sub3(p2, p0, e2);
+        cross3(e1, e2, x);
+        if (!(dot3(x, x) > 0)) continue;
+        c->valid[n] = i;
+        c->normal[3 * n] = x[0];
+        c->normal[3 * n + 1] = x[1];
+        c->normal[3 * n + 2] = x[2];
+        c->ext[n] = face_box(p0, p1, p2, c->lo + 3 * n, c->hi + 3 * n);
+        n++;
+    }
+    c->count[begin / c->chunk] = n - begin;
+}
+
+/* `faces`' pair loop over the grid's cells [begin, end) (cell k: entries cstart[k] .. cstart[k + 1] of e); each
+ * worker gathers a cell's faces into its own scratch (local, lcell, lids: `most` entries each per worker). */
+typedef struct {
+    const double *v, *lo, *hi, *normal;
+    const int32_t *f;
+    const int64_t *valid, *c0, *cstart;
+    const uint64_t *e;
+    const uint8_t *only;
+    uint8_t *flags;
+    uint64_t mask, dims_y, dims_z;
+    int fb;
+    int64_t most;
+    double *local;
+    uint64_t *lcell;
+    int64_t *lids;
+} FacesCells;
+
+static void faces_cells(void *ctx, int64_t begin, int64_t end, int worker) {
+    FacesCells *c = (FacesCells *)ctx;
+    const uint64_t *e = c->e, mask = c->mask, dims_y = c->dims_y, dims_z = c->dims_z;
+    const int64_t *valid = c->valid;
+    const int32_t *f = c->f;
+    const uint8_t *only = c->only;
+    double *local = c->local + 19 * c->most * worker; /* box 6, corners 9, normal 3, |normal| */
+    uint64_t *lcell = c->lcell + 3 * c->most * worker;
+    int64_t *lids = c->lids + 4 * c->most * worker; /* face, its 3 vertex indices */
+    for (int64_t k = begin; k < end; k++) {
+        int64_t s = c->cstart[k], r = c->cstart[k + 1];
+        uint64_t key = e[s] >> c->fb;
+        int any = 0; /* a cell without a face of interest has no pair to test */
+        for (int64_t i = s; i < r && !any; i++) any = only[valid[(int64_t)(e[i] & mask)]];
+        if (!any) continue;
+        for (int64_t i = s; i < r; i++) {
+            int64_t p = (int64_t)(e[i] & mask), o = i - s, face = valid[p];
+            double *box = local + 19 * o;
+            lids[4 * o] = face;
+            for (int d = 0; d < 3; d++) {
+                box[d] = c->lo[3 * p + d];
+                box[3 + d] = c->hi[3 * p + d];
+                box[15 + d] = c->normal[3 * p + d];
+                lcell[3 * o + d] = (uint64_t)c->c0[3 * p + d];
+                lids[4 * o + 1 + d] = f[3 * face + d];
+                for (int q = 0; q < 3; q++) box[6 + 3 * d + q] = c->v[3 * f[3 * face + d] + q];
+            }
+            box[18] = sqrt(dot3(box + 15, box + 15)); /* as the reference: sqrt(n . n) */
+        }
+        for (int64_t i = s; i < r; i++) {
+            const double *bp = local + 19 * (i - s);
+            const uint64_t *cp = lcell + 3 * (i - s);
+            const int64_t *ip = lids + 4 * (i - s);
+            for (int64_t j = i + 1; j < r; j++) {
+                const double *bq = local + 19 * (j - s);
+                const uint64_t *cq = lcell + 3 * (j - s);
+                /* test the pair once: in the cell of the larger lower corner (floor is monotone) */
+                uint64_t mx = cp[0] > cq[0] ? cp[0] : cq[0], my = cp[1] > cq[1] ? cp[1] : cq[1];
+                uint64_t mz = cp[2] > cq[2] ? cp[2] : cq[2];
+                /* branch-free: these tests go either way unpredictably, and most pairs fail one */
+                int keep = (((mx * dims_y + my) * dims_z + mz) == key) & (bp[0] <= bq[3]) & (bq[0] <= bp[3]) &
+                           (bp[1] <= bq[4]) & (bq[1] <= bp[4]) & (bp[2] <= bq[5]) & (bq[2] <= bp[5]);
+                if (!keep) continue;
+                /* a cell's entries are sorted by face: ip's face is the lower one */
+                const int64_t *iq = lids + 4 * (j - s);
+                int64_t fa = ip[0], fz = iq[0];
+                if (!only[fa] && !only[fz]) continue;
+                if (pair_intersects(bp + 6, bq + 6, ip + 1, iq + 1, bp + 15, bq + 15, bp, bq, bp[18], bq[18])) {
+                    FLAG_SET(c->flags + fa);
+                    FLAG_SET(c->flags + fz);
+                }
+            }
+        }
+    }
+}
+
+/* Faces per chunk of the first passes, and grid cells per chunk of the pair loops (small enough that the workers
+ * share the uneven cells evenly, large enough that taking a chunk costs nothing) */
+#define PASS_CHUNK 4096
+#define CELL_CHUNK 256
+#define PATCH_CHUNK 1024 /* vertices per chunk of `stars`' patches */
+
+int tw_crossings_grid(const double *v, size_t nv_, const int32_t *f, size_t nf_, const uint8_t *only, int threads,
+                      uint8_t *flags) {
+    (void)nv_;
+    int64_t nf = (int64_t)nf_;
+    memset(flags, 0, (size_t)nf);
+    int status = 0;
+    int64_t *valid = NULL, *counts = NULL, *cstart = NULL;
+    double *lo = NULL, *hi = NULL, *ext = NULL;
+    uint64_t *e = NULL, *lcell = NULL;
+    int64_t *c0 = NULL, *lids = NULL;
+    double *local = NULL, *normal = NULL;
+    size_t cap = (size_t)(nf > 0 ? nf : 1);
+    int pass_workers = workers_for(threads, nf, PASS_CHUNK);
+    int64_t chunk = block_chunk(nf, pass_workers);
+    valid = (int64_t *)malloc(sizeof(int64_t) * cap);
+    lo = (double *)malloc(sizeof(double) * 3 * cap);
+    hi = (double *)malloc(sizeof(double) * 3 * cap);
+    ext = (double *)malloc(sizeof(double) * cap);
+    normal = (double *)malloc(sizeof(double) * 3 * cap);
+    counts = (int64_t *)malloc(sizeof(int64_t) * (size_t)pass_workers);
+    if (!valid || !lo || !hi || !ext || !normal || !counts) {
+        status = -1;
+        goto done;
+    }
+    FacesPass pass = {.v = v, .f = f, .valid = valid, .count = counts, .chunk = chunk, .lo = lo, .hi = hi, .ext = ext,
+                      .normal = normal};
+    parallel_for(pass_workers, nf, chunk, faces_pass, &pass);
+    int64_t n = 0;
+    for (int64_t b = 0; b * chunk < nf; b++) { /* close the gaps between the blocks, in block order */
+        int64_t from = b * chunk, m = counts[b];
+        if (from != n) {
+            memmove(valid + n, valid + from, sizeof(int64_t) * (size_t)m);
+            memmove(normal + 3 * n, normal + 3 * from, sizeof(double) * 3 * (size_t)m);
+            memmove(lo + 3 * n, lo + 3 * from, sizeof(double) * 3 * (size_t)m);
+            memmove(hi + 3 * n, hi + 3 * from, sizeof(double) * 3 * (size_t)m);
+            memmove(ext + n, ext + from, sizeof(double) * (size_t)m);
+        }
+        n += m;
+    }
+    if (nf < 2 || n < 2) goto done;
+    /* cell = 2 median(extent); not > 0: max extent, or 1 */
+    double *sorted = (double *)malloc(sizeof(double) * (size_t)n);
+    if (!sorted) {
+        status = -1;
+        goto done;
+    }
+    double cell = first_cell(ext, sorted, n);
+    free(sorted);
+    double origin[3];
+    for (int k = 0; k < 3; k++) {
+        origin[k] = lo[k];
+        for (int64_t i = 1; i < n; i++)
+            if (lo[3 * i + k] < origin[k]) origin[k] = lo[3 * i + k];
+    }
+    c0 = (int64_t *)malloc(sizeof(int64_t) * 3 * (size_t)n);
+    if (!c0) {
+        status = -1;
+        goto done;
+    }
+    int tried_coarser = 0, tried_finer = 0, fb = 0;
+    int64_t t = 0, dims[3];
+    for (;;) {
+        int r = grid(lo, hi, n, cell, origin, c0, &e, &t, &fb, dims);
+        if (r == 0) break;
+        if (r < 0) {
+            status = -1;
+            goto done;
+        }
+        if (r == 3) {
+            status = 1;
+            goto done;
+        }
+        if (r == 1) tried_coarser = 1;
+        if (r == 2) tried_finer = 1;
+        if (tried_coarser && tried_finer) {
+            status = 1;
+            goto done;
+        }
+        cell *= (r == 1) ? 2.0 : 0.5;
+    }
+    /* the cells: runs of one key in the sorted entries, and the largest of them */
+    cstart = (int64_t *)malloc(sizeof(int64_t) * (size_t)(t + 1));
+    if (!cstart) {
+        status = -1;
+        goto done;
+    }
+    int64_t ncells = 0, most = 0;
+    for (int64_t s = 0; s < t;) {
+        int64_t r = s + 1;
+        while (r < t && (e[r] >> fb) == (e[s] >> fb)) r++;
+        if (r - s > most) most = r - s;
+        cstart[ncells++] = s;
+        s = r;
+    }
+    cstart[ncells] = t;
+    int cell_workers = workers_for(threads, ncells, CELL_CHUNK);
+    /* per cell, its boxes' lower cells and bounds gathered contiguously (the pair loop is memory bound) */
+    local = (double *)malloc(sizeof(double) * 19 * (size_t)most * (size_t)cell_workers);
+    lcell = (uint64_t *)malloc(sizeof(uint64_t) * 3 * (size_t)most * (size_t)cell_workers);
+    lids = (int64_t *)malloc(sizeof(int64_t) * 4 * (size_t)most * (size_t)cell_workers);
+    if (!local || !lcell || !lids) {
+        status = -1;
+        goto done;
+    }
+    FacesCells cells = {.v = v, .lo = lo, .hi = hi, .normal = normal, .f = f, .valid = valid, .c0 = c0,
+                        .cstart = cstart, .e = e, .only = only, .flags = flags, .mask = (((uint64_t)1) << fb) - 1,
+                        .dims_y = (uint64_t)dims[1], .dims_z = (uint64_t)dims[2], .fb = fb, .most = most,
+                        .local = local, .lcell = lcell, .lids = lids};
+    parallel_for(cell_workers, ncells, CELL_CHUNK, faces_cells, &cells);
+done:
+    free(valid);
+    free(counts);
+    free(cstart);
+    free(lo);
+    free(hi);
+    free(ext);
+    free(e);
+    free(c0);
+    free(local);
+    free(lcell);
+    free(lids);
+    free(normal);
+    return status;
+}
+
+/* The faces of one check. Boxes and normals are computed where they are needed, not stored: storing them for
+ * 320K faces cost more in fresh pages than computing them three times. */
+typedef struct {
+    const double *v;
+    const int32_t *f;
+    const uint8_t *valid, *only;
+    uint8_t *flags;
+} CheckFaces;
+
+/* Face i's corners (9 coordinates) and closed box (lo xyz, hi xyz), as `faces` computes them. */
+static inline void face_corners_box(const CheckFaces *s, int64_t i, double *corners, double *box) {
+    const int32_t *ids = s->f + 3 * i;
+    for (int k = 0; k < 3; k++)
+        for (int c = 0; c < 3; c++) corners[3 * k + c] = s->v[3 * ids[k] + c];
+    face_box(corners, corners + 3, corners + 6, box, box + 3);
+}
+
+/* Face i's normal (x1 - x0) x (x2 - x0) from its corners, as `faces` computes it. */
+static inline void face_normal(const double *corners, double *normal) {
+    double e1[3], e2[3];
+    sub3(corners + 3, corners, e1);
+    sub3(corners + 6, corners, e2);
+    cross3(e1, e2, normal);
+}
+
+/* pair_intersects of faces a, b (the lower first, as `faces`), when both are valid, one is marked and their closed
+ * boxes overlap: flags both when it accepts. */
+static void test_pair(const CheckFaces *s, int64_t a, int64_t b) {
+    if (a > b) {
+        int64_t t = a;
+        a = b;
+        b = t;
+    }
+    if (a == b || !s->valid[a] || !s->valid[b] || !(s->only[a] || s->only[b]) ||
+        (FLAG_GET(s->flags + a) && FLAG_GET(s->flags + b)))
+        return;
+    double ta[9], tb[9], na[3], nb[3], ba[6], bb[6];
+    face_corners_box(s, a, ta, ba);
+    face_corners_box(s, b, tb, bb);
+    if (!(ba[0] <= bb[3] && bb[0] <= ba[3] && ba[1] <= bb[4] && bb[1] <= ba[4] && ba[2] <= bb[5] && bb[2] <= ba[5]))
+        return;
+    face_normal(ta, na);
+    face_normal(tb, nb);
+    int64_t ia[3] = {s->f[3 * a], s->f[3 * a + 1], s->f[3 * a + 2]}, ib[3] = {s->f[3 * b], s->f[3 * b + 1], s->f[3 * b + 2]};
+    if (pair_intersects(ta, tb, ia, ib, na, nb, ba, bb, sqrt(dot3(na, na)), sqrt(dot3(nb, nb)))) {
+        FLAG_SET(s->flags + a);
+        FLAG_SET(s->flags + b);
+    }
+}
+
+/* The cells c (6: lower x y z, upper x y z) that the closed box lo (3,), hi (3,) covers on the lattice of side
+ * `cell` from `origin`: every quotient is >= 0, where truncation is floor (the reference's floor of the same
+ * quotient). Returns the number of cells, summed as the reference's grid sums it. */
+static inline double cell_range(const double *lo, const double *hi, const double *origin, double cell, int64_t *c) {
+    double span = 1;
+    for (int k = 0; k < 3; k++) {
+        c[k] = (int64_t)((lo[k] - origin[k]) / cell);
+        c[3 + k] = (int64_t)((hi[k] - origin[k]) / cell);
+        span *= (double)c[3 + k] - (double)c[k] + 1;
+    }
+    return span;
+}
+
+/* The count of first_grid_feasible over faces [begin, end): grid entries and pairs in cells, into the worker's
+ * sums. Shared counts (more than one worker) are atomic increments; whichever order they come in, a cell's
+ * increments see 0, 1, ..., its size - 1, so the pairs and the overflow test are those of the serial count. */
+typedef struct {
+    const CheckFaces *s;
+    const double *lo, *hi, *origin;
+    double cell, limit;
+    int64_t dims_y, dims_z;
+    uint16_t *counts;
+    int shared, failed; /* failed: a bound is crossed (shared: read and set atomically) */
+    double total[MAX_WORKERS];
+    long long pairs[MAX_WORKERS];
+} GridCount;
+
+static void grid_count(void *ctx, int64_t begin, int64_t end, int worker) {
+    GridCount *g = (GridCount *)ctx;
+    const CheckFaces *s = g->s;
+    double total = g->total[worker];
+    long long pairs = g->pairs[worker];
+    int ok = 1;
+    for (int64_t i = begin; i < end && ok; i++) {
+        if (!s->valid[i]) continue;
+#if TW_THREADS
+        if (g->shared && __atomic_load_n(&g->failed, __ATOMIC_RELAXED)) break;
+#endif
+        double corners[9], b[6];
+        if (g->lo) {
+            memcpy(b, g->lo + 3 * i, 3 * sizeof(double));
+            memcpy(b + 3, g->hi + 3 * i, 3 * sizeof(double));
+        } else {
+            face_corners_box(s, i, corners, b);
+        }
+        int64_t c[6];
+        total += cell_range(b, b + 3, g->origin, g->cell, c);
+        if (total > g->limit) {
+            ok = 0;
+            break;
+        }
+        for (int64_t x = c[0]; x <= c[3] && ok; x++)
+            for (int64_t y = c[1]; y <= c[4] && ok; y++)
+                for (int64_t z = c[2]; z <= c[5]; z++) {
+                    uint16_t *cnt = g->counts + (x * g->dims_y + y) * g->dims_z + z, before;
+#if TW_THREADS
+                    if (g->shared)
+                        before = __atomic_fetch_add(cnt, (uint16_t)1, __ATOMIC_RELAXED);
+                    else
+#endif
+                        before = (*cnt)++;
+                    if (before == UINT16_MAX) { /* a cell of 65536 faces (the dense count's limit) */
+                        ok = 0;
+                        break;
+                    }
+                    pairs += before;
+                }
+        if (pairs > MAX_CANDIDATE_PAIRS) ok = 0;
+    }
+    g->total[worker] = total;
+    g->pairs[worker] = pairs;
+    if (!ok) {
+#if TW_THREADS
+        __atomic_store_n(&g->failed, 1, __ATOMIC_RELAXED);
+#else
+        g->failed = 1;
+#endif
+    }
+}
+
+/* 1 when the reference's grid is feasible at its first cell size (`faces` then answers with the pair set; *cell
+ * and dims (3,) are that lattice's), 0 when that is not known here, -1 out of memory. n valid faces, ext their
+ * extents in face order, origin and top the corners of their boxes; lo, hi (F,3) the boxes when the caller keeps
+ * them, else NULL (computed from the corners). Why the count decides: see `marked` below. With several threads the
+ * faces are counted in chunks: the entries and pairs are sums of integers, and every bound is crossed by the
+ * total when it is crossed by a prefix of the serial loop (the increments are positive), so the answer is the
+ * serial one. */
+static int first_grid_feasible(const CheckFaces *s, const double *lo, const double *hi, int64_t nf, int64_t n,
+                               const double *ext, const double *origin, const double *top, double *cell_out,
+                               int64_t *dims, int threads) {
+    double *sorted = (double *)malloc(sizeof(double) * (size_t)n);
+    if (!sorted) return -1;
+    double cell = first_cell(ext, sorted, n);
+    free(sorted);
+    *cell_out = cell;
+    /* floor is monotone: the largest upper cell is that of the largest upper coordinate */
+    for (int k = 0; k < 3; k++) {
+        double q = (top[k] - origin[k]) / cell;
+        if (!(q < 1e9)) return 0; /* also NaN: a lattice this fine is never counted densely */
+        dims[k] = (int64_t)q + 1;
+    }
+    int cb = bit_length((uint64_t)dims[0]) + bit_length((uint64_t)dims[1]) + bit_length((uint64_t)dims[2]);
+    if (bit_length((uint64_t)n) + cb > 63) return 0;
+    if ((double)dims[0] * (double)dims[1] * (double)dims[2] > (double)MAX_DENSE_CELLS) return 0;
+    GridCount *g = (GridCount *)calloc(1, sizeof(GridCount));
+    if (!g) return -1;
+    g->counts = (uint16_t *)calloc((size_t)(dims[0] * dims[1] * dims[2]), sizeof(uint16_t));
+    if (!g->counts) {
+        free(g);
+        return -1;
+    }
+    int workers = workers_for(threads, nf, PASS_CHUNK);
+    g->s = s;
+    g->lo = lo;
+    g->hi = hi;
+    g->origin = origin;
+    g->cell = cell;
+    g->limit = 64.0 * (double)n + 1000000.0;
+    g->dims_y = dims[1];
+    g->dims_z = dims[2];
+    g->shared = workers > 1;
+    parallel_for(workers, nf, PASS_CHUNK, grid_count, g);
+    double total = 0;
+    long long pairs = 0;
+    for (int w = 0; w < workers; w++) {
+        total += g->total[w];
+        pairs += g->pairs[w];
+    }
+    int ok = !g->failed && total <= g->limit && pairs <= MAX_CANDIDATE_PAIRS;
+    free(g->counts);
+    free(g);
+    return ok;
+}
+
+/* One face's corners, normal (x1 - x0) x (x2 - x0), its length, box and vertex indices, as `faces` gathers them. */
+typedef struct {
+    double corners[9], normal[3], box[6], nlen;
+    int64_t ids[3], face, c0[3], c1[3]; /* c0, c1: the lower and upper cells of its box */
+} FaceData;
+
+static void face_data(const double *v, const int32_t *f, int64_t face, const double *lo, const double *hi,
+                      FaceData *d) {
+    d->face = face;
+    for (int k = 0; k < 3; k++) {
+        d->ids[k] = f[3 * face + k];
+        d->box[k] = lo[3 * face + k];
+        d->box[3 + k] = hi[3 * face + k];
+        for (int c = 0; c < 3; c++) d->corners[3 * k + c] = v[3 * f[3 * face + k] + c];
+    }
+    double e1[3], e2[3];
+    sub3(d->corners + 3, d->corners, e1);
+    sub3(d->corners + 6, d->corners, e2);
+    cross3(e1, e2, d->normal);
+    d->nlen = sqrt(dot3(d->normal, d->normal));
+}
+
+/* A block of a first pass: its valid faces, marked ones among them, and the corners of their boxes. */
+typedef struct {
+    int64_t n, marked;
+    double origin[3], top[3];
+} BlockSum;
+
+/* Add a face's box to a block's sums (the serial pass's rule: the first valid face's corners, then strictly
+ * smaller / larger ones). */
+static inline void block_add(BlockSum *b, const double *lo, const double *hi) {
+    for (int k = 0; k < 3; k++) {
+        if (b->n == 0 || lo[k] < b->origin[k]) b->origin[k] = lo[k];
+        if (b->n == 0 || hi[k] > b->top[k]) b->top[k] = hi[k];
+    }
+    b->n++;
+}
+
+/* The blocks' sums merged in block order, which is the serial pass's result: the valid faces' extents moved
+ * together (block b's n values start at ext + b * stride), origin and top (the same rule), the total of valid and
+ * of marked faces. Returns the valid faces. */
+static int64_t merge_blocks(const BlockSum *sums, int64_t blocks, int64_t stride, double *ext, double *origin,
+                            double *top, int64_t *marked) {
+    int64_t n = 0;
+    *marked = 0;
+    for (int64_t b = 0; b < blocks; b++) {
+        const BlockSum *x = sums + b;
+        if (x->n == 0) continue;
+        if (b * stride != n) memmove(ext + n, ext + b * stride, sizeof(double) * (size_t)x->n);
+        for (int k = 0; k < 3; k++) {
+            if (n == 0 || x->origin[k] < origin[k]) origin[k] = x->origin[k];
+            if (n == 0 || x->top[k] > top[k]) top[k] = x->top[k];
+        }
+        n += x->n;
+        *marked += x->marked;
+    }
+    return n;
+}
+
+/* `marked`'s first pass over faces [begin, end) (one block): as `faces`, the valid faces, boxes and extents */
+typedef struct {
+    const double *v;
+    const int32_t *f;
+    const uint8_t *only;
+    uint8_t *valid;
+    double *lo, *hi, *ext;
+    int64_t chunk;
+    BlockSum *sums;
+} MarkedPass;
+
+static void marked_pass(void *ctx, int64_t begin, int64_t end, int worker) {
+    (void)worker;
+    MarkedPass *c = (MarkedPass *)ctx;
+    const double *v = c->v;
+    const int32_t *f = c->f;
+    BlockSum *b = c->sums + begin / c->chunk;
+    b->n = b->marked = 0;
+    for (int64_t i = begin; i < end; i++) {
+        const double *p0 = v + 3 * f[3 * i], *p1 = v + 3 * f[3 * i + 1], *p2 = v + 3 * f[3 * i + 2];
+        double e1[3], e2[3], x[3];
+        sub3(p1, p0, e1);
+        sub3(p2, p0, e2);
+        cross3(e1, e2, x);
+        c->valid[i] = dot3(x, x) > 0;
+        if (!c->valid[i]) continue;
+        c->ext[begin + b->n] = face_box(p0, p1, p2, c->lo + 3 * i, c->hi + 3 * i);
+        block_add(b, c->lo + 3 * i, c->hi + 3 * i);
+        b->marked += c->only[i] != 0;
+    }
+}
+
+/* `marked`'s pair loop over faces [begin, end): each face's box scans the marked faces listed in its cells */
+typedef struct {
+    const double *v, *lo, *hi, *origin;
+    const int32_t *f;
+    const int64_t *dims;
+    const uint8_t *valid, *only;
+    uint8_t *flags;
+    const uint64_t *hot;
+    const int32_t *head, *next, *who;
+    const FaceData *mk;
+    double cell;
+} MarkedLoop;
+
+static void marked_loop(void *ctx, int64_t begin, int64_t end, int worker) {
+    (void)worker;
+    const MarkedLoop *c = (const MarkedLoop *)ctx;
+    const int64_t *dims = c->dims;
+    const uint8_t *only = c->only;
+    uint8_t *flags = c->flags;
+    FaceData q;
+    for (int64_t i = begin; i < end; i++) {
+        if (!c->valid[i]) continue;
+        const double *ql = c->lo + 3 * i, *qh = c->hi + 3 * i;
+        int64_t r[6];
+        cell_range(ql, qh, c->origin, c->cell, r);
+        int have = 0;
+        for (int64_t x = r[0]; x <= r[3]; x++)
+            for (int64_t y = r[1]; y <= r[4]; y++)
+                for (int64_t z = r[2]; z <= r[5]; z++) {
+                    int64_t at = (x * dims[1] + y) * dims[2] + z;
+                    if (!(c->hot[at >> 6] >> (at & 63) & 1)) continue;
+                    for (int32_t e = c->head[at]; e > 0; e = c->next[e - 1]) {
+                        const FaceData *p = c->mk + c->who[e - 1];
+                        if (p->face == i || (only[i] && i > p->face)) continue; /* a marked pair from its lower face */
+                        int64_t mx = p->c0[0] > r[0] ? p->c0[0] : r[0], my = p->c0[1] > r[1] ? p->c0[1] : r[1];
+                        int64_t mz = p->c0[2] > r[2] ? p->c0[2] : r[2];
+                        if (mx != x || my != y || mz != z) continue; /* the pair's own cell */
+                        const double *pb = p->box;
+                        if (!(pb[0] <= qh[0] && ql[0] <= pb[3] && pb[1] <= qh[1] && ql[1] <= pb[4] && pb[2] <= qh[2] &&
+                              ql[2] <= pb[5]))
+                            continue;
+                        /* nothing left to learn from this pair */
+                        if (FLAG_GET(flags + i) && FLAG_GET(flags + p->face)) continue;
+                        if (!have) {
+                            face_data(c->v, c->f, i, c->lo, c->hi, &q);
+                            have = 1;
+                        }
+                        const FaceData *a = i < p->face ? &q : p, *b = i < p->face ? p : &q;
+                        if (pair_intersects(a->corners, b->corners, a->ids, b->ids, a->normal, b->normal, a->box,
+                                            b->box, a->nlen, b->nlen)) {
+                            FLAG_SET(flags + i);
+                            FLAG_SET(flags + p->face);
+                        }
+                    }
+                }
+    }
+}
+
+/* marked(vertices (V,3) float64, faces (F,3) int64, flags (F,) uint8 out, only (F,) uint8) -> 0: decided, flags
+ * are exactly what faces(vertices, faces, flags, only) writes; 2: undecided (flags all 0: the caller runs `faces`).
+ *
+ * For checks that mark few faces (geometry.surface_filter.restore_crossings after its first check): `faces`
+ * rebuilds and sorts the whole grid for them; this does O(F) passes and the marked faces' pairs only.
+ *
+ * Why the answers agree. `faces` flags both faces of every pair of valid faces with overlapping closed boxes, at
+ * least one marked, that pair_intersects accepts (its grid only lists candidates: every overlapping pair shares
+ * the cell of its larger lower corner) -- unless no cell size is feasible (status 1). It starts from first_cell()
+ * of the extents and tries another size only when that one is infeasible: more than 64 n + 10^6 grid entries, keys
+ * over 63 bits, or more than MAX_CANDIDATE_PAIRS pairs in cells. This computes the same first size and origin,
+ * sums the entries in the same order, and counts every cell's faces (a dense array over the lattice; undecided
+ * when that has more than MAX_DENSE_CELLS cells or a cell 65535 faces) to get the exact pair count: when the
+ * first size is feasible, the answer is the pair set, computed here from lists of the marked faces per cell (the
+ * same dense lattice) that every valid face's box scans, each pair once (in the cell of its larger lower corner; a pair of two marked
+ * faces from its lower face), the lower face first as in `faces`. */
+int tw_crossings_marked(const double *v, size_t nv_, const int32_t *f, size_t nf_, const uint8_t *only, int threads,
+                        uint8_t *flags) {
+    (void)nv_;
+    int64_t nf = (int64_t)nf_;
+    int status = 2;
+    double *lo = NULL, *hi = NULL, *ext = NULL;
+    uint8_t *valid = NULL;
+    uint64_t *hot = NULL; /* one bit per cell: some marked face covers it (fits a cache where head does not) */
+    int32_t *head = NULL, *next = NULL, *who = NULL;
+    FaceData *mk = NULL;
+    BlockSum *sums = NULL;
+    memset(flags, 0, (size_t)nf);
+    size_t cap = (size_t)(nf > 0 ? nf : 1);
+    lo = (double *)malloc(sizeof(double) * 3 * cap);
+    hi = (double *)malloc(sizeof(double) * 3 * cap);
+    ext = (double *)malloc(sizeof(double) * cap);
+    valid = (uint8_t *)malloc(cap);
+    if (!lo || !hi || !ext || !valid) {
+        status = -1;
+        goto done;
+    }
+    int pass_workers = workers_for(threads, nf, PASS_CHUNK);
+    int64_t chunk = block_chunk(nf, pass_workers), k_marked = 0;
+    sums = (BlockSum *)calloc((size_t)pass_workers, sizeof(BlockSum));
+    if (!sums) {
+        status = -1;
+        goto done;
+    }
+    MarkedPass pass = {.v = v, .f = f, .only = only, .valid = valid, .lo = lo, .hi = hi, .ext = ext, .chunk = chunk,
+                       .sums = sums};
+    parallel_for(pass_workers, nf, chunk, marked_pass, &pass);
+    double origin[3] = {0, 0, 0}, top[3] = {0, 0, 0};
+    int64_t n = merge_blocks(sums, nf > 0 ? (nf + chunk - 1) / chunk : 0, chunk, ext, origin, top, &k_marked);
+    if (nf < 2 || n < 2) { /* `faces` flags nothing */
+        status = 0;
+        goto done;
+    }
+    CheckFaces s = {v, f, valid, only, flags};
+    double cell;
+    int64_t dims[3];
+    int feasible = first_grid_feasible(&s, lo, hi, nf, n, ext, origin, top, &cell, dims, threads);
+    if (feasible < 0) status = -1;
+    if (feasible <= 0) goto done;
+    int64_t ncells = dims[0] * dims[1] * dims[2];
+    head = (int32_t *)calloc((size_t)ncells, sizeof(int32_t)); /* 1 + first marked entry of a cell, 0: none */
+    hot = (uint64_t *)calloc((size_t)(ncells / 64 + 1), sizeof(uint64_t));
+    mk = (FaceData *)malloc(sizeof(FaceData) * (size_t)(k_marked > 0 ? k_marked : 1));
+    if (!head || !hot || !mk) {
+        status = -1;
+        goto done;
+    }
+    /* the marked faces' lists per cell */
+    int64_t m = 0, t = 0, t_cap = 0;
+    for (int64_t i = 0; i < nf; i++) {
+        if (!valid[i] || !only[i]) continue;
+        int64_t c[6];
+        double span = cell_range(lo + 3 * i, hi + 3 * i, origin, cell, c);
+        int64_t need = t + (int64_t)span;
+        if (need > t_cap) {
+            t_cap = 2 * need + 64;
+            int32_t *nn = (int32_t *)realloc(next, sizeof(int32_t) * (size_t)t_cap);
+            if (nn) next = nn;
+            int32_t *nw = (int32_t *)realloc(who, sizeof(int32_t) * (size_t)t_cap);
+            if (nw) who = nw;
+            if (!nn || !nw) {
+                status = -1;
+                goto done;
+            }
+        }
+        FaceData *d = mk + m;
+        face_data(v, f, i, lo, hi, d);
+        for (int k = 0; k < 3; k++) {
+            d->c0[k] = c[k];
+            d->c1[k] = c[3 + k];
+        }
+        for (int64_t x = c[0]; x <= c[3]; x++)
+            for (int64_t y = c[1]; y <= c[4]; y++)
+                for (int64_t z = c[2]; z <= c[5]; z++) {
+                    int64_t at = (x * dims[1] + y) * dims[2] + z;
+                    int32_t *h = head + at;
+                    hot[at >> 6] |= (uint64_t)1 << (at & 63);
+                    who[t] = (int32_t)m;
+                    next[t] = *h;
+                    *h = (int32_t)(++t);
+                }
+        m++;
+    }
+    /* decided: the first cell size is feasible, the answer is the pair set */
+    status = 0;
+    if (m == 0) goto done;
+    MarkedLoop loop = {.v = v, .lo = lo, .hi = hi, .origin = origin, .f = f, .dims = dims, .valid = valid,
+                       .only = only, .flags = flags, .hot = hot, .head = head, .next = next, .who = who, .mk = mk,
+                       .cell = cell};
+    parallel_for(workers_for(threads, nf, PASS_CHUNK), nf, PASS_CHUNK, marked_loop, &loop);
+done:
+    if (status == 2) memset(flags, 0, (size_t)nf);
+    free(sums);
+    free(lo);
+    free(hi);
+    free(ext);
+    free(valid);
+    free(hot);
+    free(head);
+    free(next);
+    free(who);
+    free(mk);
+    return status;
+}
+
+/* ------------------------------------------------------------------------------------------------------------
+ * stars(vertices (V,3) float64, faces (F,3) int64, flags (F,) uint8 out, only (F,) uint8, children int) -> 0:
+ * decided, flags are exactly what faces(vertices, faces, flags, only) writes; 2: undecided (flags all 0: the
+ * caller runs `faces`).
+ *
+ * The first check of a filtered surface, without a grid over its faces. `children` is 1, or 4 when the faces come
+ * in runs of four, the children of one face of the level before (geometry.subdivision.loop_level: the corner
+ * children (a, m_ab, m_ca), (m_ab, b, m_bc), (m_ca, m_bc, c) and the middle one (m_ab, m_bc, m_ca)); "parents" are
+ * those faces (children 1: the faces themselves). Every pair of valid faces with overlapping closed boxes and a
+ * face marked in `only` is either tested with pair_intersects, the lower face first, as `faces` tests it, or
+ * shown not to cross:
+ *
+ * - Parents that share no vertex: their children share no vertex either; a grid over the parents' boxes (the
+ *   union of their children's) lists the parent pairs whose boxes overlap, and each pair of their children whose
+ *   boxes overlap is tested.
+ * - Parents that share a vertex u: both lie in u's patch, the children of the parents around u. The patch is a
+ *   disk (a closed fan of parents, checked, refined as loop_level refines it). Projected along N, the sum of its
+ *   faces' normals, every face of the patch has twice its area at least STAR_MARGIN times its longest edge squared
+ *   (shown for each parent's children at once, from the cone of their normals: ParentRec), and
+ *   its boundary turns around u by at least STAR_MARGIN (sine of the angle) at every step and once in all: the
+ *   projection of a disk whose faces all keep their orientation and whose boundary is a simple closed curve is
+ *   one-to-one (each point inside the curve has one preimage, counted with orientation), so no two faces of the
+ *   patch meet outside the vertices and edges they share, and faces sharing only u stay apart by at least
+ *   ~STAR_MARGIN of their edges, far above the contact tolerances of pair_intersects (TOUCH_3D m^3: faces within
+ *   ~2^-43 m), which therefore answers 0 for each of the patch's pairs (tests: stars == faces on Loop levels with
+ *   folds and crossings). A patch that fails this has all its pairs tested.
+ *
+ * `faces` answers with that pair set unless its grid fails at its first cell size; first_grid_feasible() proves
+ * it does not (as `marked` does), else this is undecided. Undecided also when the runs are not Loop children or
+ * the parents' grid would be too large: the caller then runs `faces`.
+ * ------------------------------------------------------------------------------------------------------------ */
+#define STAR_MARGIN 1e-6
+#define MAX_STAR 64 /* parents around one vertex that a patch takes; more: its pairs are tested */
+#define MAX_PARENT_PAIRS 64000000LL
+
+/* A parent as the patches read it (one record, so that a patch touches a few cache lines, not its 24 faces): its
+ * corners and edge midpoints, the sum of its children's normals, and a cone that holds their unit normals: every
+ * child's unit normal is within angle t of `axis` (cos_t, sin_t), and `need` = the largest of STAR_MARGIN (longest
+ * edge)^2 / |normal| over the children. ok: every child valid and the cone narrower than a half-space. */
+typedef struct {
+    int64_t ids[3], mid[3]; /* mid: m01, m12, m20 (children 4), the middle child's corners */
+    double nsum[3], axis[3], cos_t, sin_t, need;
+    uint8_t ok, marked;
+} ParentRec;
+
+/* Rounding allowance of the cone test (its inputs are unit vectors; the test's margin is STAR_MARGIN) */
+#define CONE_SLACK 1e-9
+
+/* One vertex's patch: 1 when it is shown free of crossings (see above), 0 when its pairs must be tested. pf: the
+ * k parents around u; group: children per parent. */
+static int patch_certified(const CheckFaces *s, const ParentRec *recs, int group, int64_t u, const int64_t *pf,
+                           int64_t k) {
+    if (k < 3 || k > MAX_STAR) return 0;
+    int64_t a[MAX_STAR], b[MAX_STAR], mid[MAX_STAR], spoke_a[MAX_STAR], spoke_b[MAX_STAR], order[MAX_STAR];
+    uint8_t used[MAX_STAR];
+    for (int64_t t = 0; t < k; t++) {
+        const ParentRec *r = recs + pf[t];
+        const int64_t *p = r->ids;
+        if (!r->ok || p[0] == p[1] || p[1] == p[2] || p[2] == p[0]) return 0;
+        int at = p[0] == u ? 0 : p[1] == u ? 1 : 2;
+        a[t] = p[(at + 1) % 3];
+        b[t] = p[(at + 2) % 3];
+        if (group == 4) { /* the middle child (m01, m12, m20): edge (x_e, x_e+1) has its midpoint at e */
+            const int64_t *m = r->mid;
+            mid[t] = m[(at + 1) % 3];
+            spoke_a[t] = m[at];           /* midpoint of (u, a) */
+            spoke_b[t] = m[(at + 2) % 3]; /* midpoint of (b, u) */
+        }
+        used[t] = 0;
+    }
+    /* the parents in fan order: each starts where the last ended, one cycle through all */
+    order[0] = 0;
+    used[0] = 1;
+    for (int64_t t = 1; t < k; t++) {
+        int64_t prev = order[t - 1], next = -1;
+        for (int64_t c = 0; c < k; c++)
+            if (!used[c] && a[c] == b[prev]) {
+                if (next >= 0) return 0; /* two candidates: not a manifold fan */
+                next = c;
+            }
+        if (next < 0) return 0;
+        order[t] = next;
+        used[next] = 1;
+    }
+    if (b[order[k - 1]] != a[order[0]]) return 0;
+    /* a disk: distinct boundary vertices, spoke midpoints shared by neighbouring parents and distinct */
+    for (int64_t t = 0; t < k; t++)
+        for (int64_t c = t + 1; c < k; c++) {
+            if (a[t] == a[c]) return 0;
+            if (group == 4 && (mid[t] == mid[c] || spoke_a[t] == spoke_a[c] || mid[t] == a[c] || mid[c] == a[t]))
+                return 0;
+        }
+    if (group == 4)
+        for (int64_t t = 0; t < k; t++) {
+            int64_t x = order[t], y = order[(t + 1) % k];
+            if (spoke_b[x] != spoke_a[y]) return 0;
+            if (spoke_a[x] == u || mid[x] == u) return 0;
+            for (int64_t c = 0; c < k; c++)
+                if (spoke_a[x] == a[c] || spoke_a[x] == mid[c]) return 0;
+        }
+    /* N: the sum of the children's normals */
+    double nrm[3] = {0, 0, 0};
+    for (int64_t t = 0; t < k; t++)
+        for (int c = 0; c < 3; c++) nrm[c] += recs[pf[t]].nsum[c];
+    double len = sqrt(dot3(nrm, nrm));
+    if (!(len > 0)) return 0;
+    for (int c = 0; c < 3; c++) nrm[c] /= len;
+    /* every child keeps its orientation with area to spare, (projected double area) >= margin (longest edge)^2:
+     * its unit normal is within t of the cone's axis, the axis within a of N, so their angle is at most a + t and
+     * the projected share of its area at least cos(a + t) >= need */
+    for (int64_t t = 0; t < k; t++) {
+        const ParentRec *r = recs + pf[t];
+        double d = dot3(r->axis, nrm);
+        if (!(d > 0)) return 0;
+        double sin_a = sqrt(d < 1 ? 1 - d * d : 0);
+        if (!(d * r->cos_t - sin_a * r->sin_t >= r->need + CONE_SLACK)) return 0;
+    }
+    /* the boundary, projected on a basis (e1, e2) of the plane normal to N, turns around u once, each step by a
+     * positive angle with margin */
+    double e1[3], e2[3], axis[3] = {0, 0, 0};
+    int small = fabs(nrm[0]) <= fabs(nrm[1]) ? (fabs(nrm[0]) <= fabs(nrm[2]) ? 0 : 2) : (fabs(nrm[1]) <= fabs(nrm[2]) ? 1 : 2);
+    axis[small] = 1;
+    cross3(nrm, axis, e1);
+    double l1 = sqrt(dot3(e1, e1));
+    for (int c = 0; c < 3; c++) e1[c] /= l1;
+    cross3(nrm, e1, e2);
+    const double *pu = s->v + 3 * u;
+    int64_t nb = group == 4 ? 2 * k : k;
+    double q[2 * MAX_STAR][2];
+    for (int64_t t = 0; t < k; t++) {
+        int64_t x = order[t];
+        int64_t ids[2] = {a[x], group == 4 ? mid[x] : -1};
+        for (int j = 0; j < (group == 4 ? 2 : 1); j++) {
+            double d[3];
+            sub3(s->v + 3 * ids[j], pu, d);
+            double *qq = q[(group == 4 ? 2 : 1) * t + j];
+            qq[0] = dot3(d, e1);
+            qq[1] = dot3(d, e2);
+        }
+    }
+    int winding = 0;
+    for (int64_t i = 0; i < nb; i++) {
+        const double *p = q[i], *r = q[(i + 1) % nb];
+        double cr = p[0] * r[1] - p[1] * r[0];
+        double lp = p[0] * p[0] + p[1] * p[1], lr = r[0] * r[0] + r[1] * r[1];
+        if (!(cr > 0 && cr * cr >= STAR_MARGIN * STAR_MARGIN * lp * lr)) return 0; /* cr > 0: lp, lr > 0 */
+        winding += p[1] < 0 && r[1] >= 0;
+    }
+    return winding == 1;
+}
+
+/* `stars`' pass over parents [begin, end) (one block): as `faces`, the valid faces, their boxes and extents (the
+ * reference's grid, merged by merge_blocks); each parent's record (runs checked to be Loop children) and box (its
+ * valid children's) */
+typedef struct {
+    const CheckFaces *s;
+    int group;
+    int64_t chunk;
+    uint8_t *valid, *interest, *runs;
+    ParentRec *recs;
+    double *gbox, *ext;
+    BlockSum *sums;
+} StarsPass;
+
+static void stars_pass(void *ctx, int64_t begin, int64_t end, int worker) {
+    (void)worker;
+    StarsPass *sp = (StarsPass *)ctx;
+    const CheckFaces *s = sp->s;
+    const int group = sp->group;
+    uint8_t *valid = sp->valid, *interest = sp->interest;
+    ParentRec *recs = sp->recs;
+    double *gbox = sp->gbox, *ext = sp->ext;
+    BlockSum *sum = sp->sums + begin / sp->chunk;
+    int runs = 1;
+    sum->n = sum->marked = 0;
+    for (int64_t j = begin; j < end; j++) {
+        const int32_t *c = s->f + 3 * group * j;
+        ParentRec *r = recs + j;
+        if (group == 1) {
+            r->ids[0] = c[0], r->ids[1] = c[1], r->ids[2] = c[2];
+            r->mid[0] = r->mid[1] = r->mid[2] = -1;
+        } else {
+            int64_t m01 = c[1], m20 = c[2], m12 = c[5];
+            r->ids[0] = c[0], r->ids[1] = c[4], r->ids[2] = c[8];
+            r->mid[0] = m01, r->mid[1] = m12, r->mid[2] = m20;
+            if (c[3] != m01 || c[6] != m20 || c[7] != m12 || c[9] != m01 || c[10] != m12 || c[11] != m20) runs = 0;
+        }
+        double unit[4][3], sum_u[3] = {0, 0, 0}, *gb = gbox + 6 * j;
+        r->nsum[0] = r->nsum[1] = r->nsum[2] = 0;
+        r->need = 0;
+        r->ok = 1;
+        r->marked = 0;
+        interest[j] = 2; /* no valid child: never a candidate of the parents' grid */
+        for (int g = 0; g < group; g++) {
+            int64_t face = group * j + g;
+            const double *p0 = s->v + 3 * s->f[3 * face], *p1 = s->v + 3 * s->f[3 * face + 1];
+            const double *p2 = s->v + 3 * s->f[3 * face + 2];
+            double e1[3], e2[3], e3[3], nrm[3], b[6];
+            sub3(p1, p0, e1);
+            sub3(p2, p0, e2);
+            cross3(e1, e2, nrm);
+            double nn = dot3(nrm, nrm);
+            valid[face] = nn > 0;
+            r->marked |= s->only[face];
+            if (!valid[face]) {
+                r->ok = 0;
+                continue;
+            }
+            double x = face_box(p0, p1, p2, b, b + 3);
+            for (int k = 0; k < 3; k++) {
+                if (interest[j] == 2 || b[k] < gb[k]) gb[k] = b[k];
+                if (interest[j] == 2 || b[3 + k] > gb[3 + k]) gb[3 + k] = b[3 + k];
+            }
+            ext[group * begin + sum->n] = x;
+            block_add(sum, b, b + 3);
+            interest[j] = (interest[j] == 2 ? 0 : interest[j]) | s->only[face];
+            /* the cone of the children's unit normals and the margin they need (patch_certified) */
+            sub3(p2, p1, e3);
+            double nl = sqrt(nn), l1 = dot3(e1, e1), l2 = dot3(e2, e2), l3 = dot3(e3, e3);
+            double longest = l1 > l2 ? (l1 > l3 ? l1 : l3) : (l2 > l3 ? l2 : l3);
+            double need = STAR_MARGIN * longest / nl;
+            if (need > r->need) r->need = need;
+            for (int k = 0; k < 3; k++) {
+                r->nsum[k] += nrm[k];
+                unit[g][k] = nrm[k] / nl;
+                sum_u[k] += unit[g][k];
+            }
+        }
+        double sl = sqrt(dot3(sum_u, sum_u));
+        r->cos_t = -1;
+        if (r->ok && sl > 0) {
+            for (int k = 0; k < 3; k++) r->axis[k] = sum_u[k] / sl;
+            double lowest = 1;
+            for (int g = 0; g < group; g++) {
+                double d = dot3(unit[g], r->axis);
+                if (d < lowest) lowest = d;
+            }
+            r->cos_t = lowest;
+        }
+        if (!(r->cos_t > 0)) r->ok = 0;
+        r->sin_t = r->ok ? sqrt(1 - r->cos_t * r->cos_t) : 1;
+    }
+    sp->runs[begin / sp->chunk] = (uint8_t)runs;
+}
+
+/* `stars`' patches of vertices [begin, end) (see patch_certified) */
+typedef struct {
+    const CheckFaces *s;
+    const ParentRec *recs;
+    const int64_t *vstart, *vfaces;
+    int group;
+} StarsPatches;
+
+static void stars_patches(void *ctx, int64_t begin, int64_t end, int worker) {
+    (void)worker;
+    const StarsPatches *c = (const StarsPatches *)ctx;
+    const ParentRec *recs = c->recs;
+    const int group = c->group;
+    for (int64_t u = begin; u < end; u++) {
+        const int64_t *pf = c->vfaces + c->vstart[u];
+        int64_t k = c->vstart[u + 1] - c->vstart[u], any = 0;
+        for (int64_t t = 0; t < k && !any; t++) any |= recs[pf[t]].marked;
+        if (!any || patch_certified(c->s, recs, group, u, pf, k)) continue;
+        for (int64_t t = 0; t < k; t++)
+            for (int g = 0; g < group; g++)
+                for (int64_t w = t; w < k; w++)
+                    for (int h = (w == t ? g + 1 : 0); h < group; h++)
+                        test_pair(c->s, group * pf[t] + g, group * pf[w] + h);
+    }
+}
+
+/* A parent as the grid's pair loop reads it: box (lo xyz, hi xyz), lower cell, vertex indices, marked child. */
+typedef struct {
+    double box[6];
+    int64_t c0[3], ids[3], id;
+    int interest;
+} CellParent;
+
+/* `stars`' pair loop over the parents' grid, cells [begin, end) (cell (x, y, z) is number (x dims_y + y) dims_z
+ * + z); each worker gathers a cell's parents into its own scratch (`most` entries per worker) */
+typedef struct {
+    const CheckFaces *s;
+    const ParentRec *recs;
+    const double *gbox;
+    const int64_t *gc, *bucket, *dims;
+    const int32_t *cstart;
+    const uint8_t *interest;
+    int group;
+    int64_t most;
+    CellParent *local;
+} StarsCells;
+
+static void stars_cells(void *ctx, int64_t begin, int64_t end, int worker) {
+    const StarsCells *c = (const StarsCells *)ctx;
+    const int group = c->group;
+    const int64_t *dims = c->dims;
+    CellParent *local = c->local + c->most * worker;
+    for (int64_t cid = begin; cid < end; cid++) {
+        int64_t s0 = c->cstart[cid], m = c->cstart[cid + 1] - s0;
+        if (m < 2) continue;
+        int64_t x = cid / (dims[1] * dims[2]), y = cid / dims[2] % dims[1], z = cid % dims[2];
+        for (int64_t i = 0; i < m; i++) {
+            int64_t p = c->bucket[s0 + i];
+            CellParent *l = local + i;
+            l->id = p;
+            l->interest = c->interest[p];
+            for (int k = 0; k < 3; k++) {
+                l->box[k] = c->gbox[6 * p + k];
+                l->box[3 + k] = c->gbox[6 * p + 3 + k];
+                l->c0[k] = c->gc[6 * p + k];
+                l->ids[k] = c->recs[p].ids[k];
+            }
+        }
+        for (int64_t i = 0; i < m; i++) {
+            const CellParent *lp = local + i;
+            for (int64_t j = i + 1; j < m; j++) {
+                const CellParent *lr = local + j;
+                const double *bp = lp->box, *br = lr->box;
+                /* branch-free: the pair once (in the cell of its larger lower corner), boxes overlap */
+                int keep = ((lp->c0[0] > lr->c0[0] ? lp->c0[0] : lr->c0[0]) == x) &
+                           ((lp->c0[1] > lr->c0[1] ? lp->c0[1] : lr->c0[1]) == y) &
+                           ((lp->c0[2] > lr->c0[2] ? lp->c0[2] : lr->c0[2]) == z) & (bp[0] <= br[3]) &
+                           (br[0] <= bp[3]) & (bp[1] <= br[4]) & (br[1] <= bp[4]) & (bp[2] <= br[5]) &
+                           (br[2] <= bp[5]) & ((lp->interest | lr->interest) != 0);
+                if (!keep) continue;
+                const int64_t *vp = lp->ids, *vr = lr->ids;
+                int touch = 0;
+                for (int q = 0; q < 3; q++) touch |= (vp[q] == vr[0]) | (vp[q] == vr[1]) | (vp[q] == vr[2]);
+                if (touch) continue; /* a patch's pair */
+                for (int g = 0; g < group; g++)
+                    for (int h = 0; h < group; h++) test_pair(c->s, group * lp->id + g, group * lr->id + h);
+            }
+        }
+    }
+}
+
+int tw_crossings_stars(const double *v, size_t nv_, const int32_t *f, size_t nf_, const uint8_t *only, int group,
+                       int threads, uint8_t *flags) {
+    int64_t nf = (int64_t)nf_;
+    if (group != 1 && group != 4) return 2;
+    CheckFaces s;
+    s.v = v;
+    s.f = f;
+    s.only = only;
+    s.flags = flags;
+    int status = 2;
+    uint8_t *valid = NULL, *interest = NULL;
+    double *ext = NULL, *gbox = NULL, *gext = NULL;
+    ParentRec *recs = NULL;
+    int64_t *vstart = NULL, *vfaces = NULL, *gc = NULL, *bucket = NULL;
+    int32_t *cstart = NULL;
+    CellParent *local = NULL;
+    BlockSum *sums = NULL;
+    uint8_t *runs = NULL;
+    memset(s.flags, 0, (size_t)nf);
+    size_t cap = (size_t)(nf > 0 ? nf : 1);
+    valid = (uint8_t *)malloc(cap);
+    ext = (double *)malloc(sizeof(double) * cap);
+    if (!valid || !ext) {
+        status = -1;
+        goto done;
+    }
+    s.valid = valid;
+    int64_t n = 0, nv = (int64_t)nv_, np = nf / group;
+    if (nf % group) goto done;
+    recs = (ParentRec *)malloc(sizeof(ParentRec) * (size_t)(np > 0 ? np : 1));
+    gbox = (double *)malloc(sizeof(double) * 6 * (size_t)(np > 0 ? np : 1));
+    interest = (uint8_t *)malloc((size_t)(np > 0 ? np : 1));
+    if (!recs || !gbox || !interest) {
+        status = -1;
+        goto done;
+    }
+    /* one pass over the faces, parent by parent (stars_pass) */
+    int pass_workers = workers_for(threads, np, PASS_CHUNK / 4);
+    int64_t chunk = block_chunk(np, pass_workers), blocks = np > 0 ? (np + chunk - 1) / chunk : 0, k_marked;
+    sums = (BlockSum *)calloc((size_t)pass_workers, sizeof(BlockSum));
+    runs = (uint8_t *)malloc((size_t)pass_workers);
+    if (!sums || !runs) {
+        status = -1;
+        goto done;
+    }
+    StarsPass pass = {.s = &s, .group = group, .chunk = chunk, .valid = valid, .interest = interest, .runs = runs,
+                      .recs = recs, .gbox = gbox, .ext = ext, .sums = sums};
+    parallel_for(pass_workers, np, chunk, stars_pass, &pass);
+    double origin[3] = {0, 0, 0}, top[3] = {0, 0, 0};
+    n = merge_blocks(sums, blocks, group * chunk, ext, origin, top, &k_marked);
+    int loop_runs = 1;
+    for (int64_t b = 0; b < blocks; b++) loop_runs &= runs[b];
+    if (nf < 2 || n < 2) { /* `faces` flags nothing */
+        status = 0;
+        goto done;
+    }
+    if (!loop_runs) goto done;
+    double fine_cell;
+    int64_t fine_dims[3];
+    int feasible = first_grid_feasible(&s, NULL, NULL, nf, n, ext, origin, top, &fine_cell, fine_dims, threads);
+    if (feasible < 0) status = -1;
+    if (feasible <= 0) goto done;
+    /* the parents around each vertex */
+    vstart = (int64_t *)calloc((size_t)nv + 1, sizeof(int64_t));
+    vfaces = (int64_t *)malloc(sizeof(int64_t) * 3 * (size_t)np);
+    if (!vstart || !vfaces) {
+        status = -1;
+        goto done;
+    }
+    for (int64_t j = 0; j < np; j++)
+        for (int c = 0; c < 3; c++) vstart[recs[j].ids[c] + 1]++;
+    for (int64_t u = 0; u < nv; u++) vstart[u + 1] += vstart[u];
+    for (int64_t j = 0; j < np; j++)
+        for (int c = 0; c < 3; c++) vfaces[vstart[recs[j].ids[c]]++] = j;
+    for (int64_t u = nv; u > 0; u--) vstart[u] = vstart[u - 1];
+    vstart[0] = 0;
+    /* patches */
+    StarsPatches patches = {.s = &s, .recs = recs, .vstart = vstart, .vfaces = vfaces, .group = group};
+    parallel_for(workers_for(threads, nv, PATCH_CHUNK), nv, PATCH_CHUNK, stars_patches, &patches);
+    /* parents sharing no vertex: a grid over their boxes */
+    gext = (double *)malloc(sizeof(double) * (size_t)np);
+    gc = (int64_t *)malloc(sizeof(int64_t) * 6 * (size_t)np);
+    if (!gext || !gc) {
+        status = -1;
+        goto done;
+    }
+    int64_t ng = 0;
+    double go[3] = {0, 0, 0}, gt[3] = {0, 0, 0};
+    for (int64_t j = 0; j < np; j++) {
+        if (interest[j] == 2) continue;
+        const double *b = gbox + 6 * j;
+        double x = 0;
+        for (int k = 0; k < 3; k++) {
+            if (b[3 + k] - b[k] > x) x = b[3 + k] - b[k];
+            if (ng == 0 || b[k] < go[k]) go[k] = b[k];
+            if (ng == 0 || b[3 + k] > gt[k]) gt[k] = b[3 + k];
+        }
+        gext[ng++] = x;
+    }
+    if (ng < 2) {
+        status = 0;
+        goto done;
+    }
+    double cell = 2.0 * kth_smallest(gext, ng, ng / 2);
+    if (!(cell > 0)) cell = 1.0;
+    int64_t dims[3], ncells = 0, entries = 0;
+    for (int round = 0;; round++) {
+        if (round == 64) goto done;
+        double total = 1;
+        for (int k = 0; k < 3; k++) {
+            double q = (gt[k] - go[k]) / cell;
+            dims[k] = q < 1e9 ? (int64_t)q + 1 : (int64_t)1e9;
+            total *= (double)dims[k];
+        }
+        double spans = 0;
+        if (total <= (double)MAX_DENSE_CELLS)
+            for (int64_t j = 0; j < np; j++) {
+                if (interest[j] == 2) continue;
+                const double *b = gbox + 6 * j;
+                double span = 1;
+                for (int k = 0; k < 3; k++)
+                    span *= (double)((int64_t)((b[3 + k] - go[k]) / cell) - (int64_t)((b[k] - go[k]) / cell) + 1);
+                spans += span;
+            }
+        if (total <= (double)MAX_DENSE_CELLS && spans <= 64.0 * (double)ng + 1000000.0) {
+            ncells = (int64_t)total;
+            entries = (int64_t)spans;
+            break;
+        }
+        cell *= 2.0;
+    }
+    cstart = (int32_t *)calloc((size_t)ncells + 1, sizeof(int32_t));
+    bucket = (int64_t *)malloc(sizeof(int64_t) * (size_t)(entries > 0 ? entries : 1));
+    if (!cstart || !bucket) {
+        status = -1;
+        goto done;
+    }
+    for (int64_t j = 0; j < np; j++) {
+        if (interest[j] == 2) continue;
+        const double *b = gbox + 6 * j;
+        int64_t *c = gc + 6 * j;
+        for (int k = 0; k < 3; k++) {
+            c[k] = (int64_t)((b[k] - go[k]) / cell);
+            c[3 + k] = (int64_t)((b[3 + k] - go[k]) / cell);
+        }
+        for (int64_t x = c[0]; x <= c[3]; x++)
+            for (int64_t y = c[1]; y <= c[4]; y++)
+                for (int64_t z = c[2]; z <= c[5]; z++) cstart[(x * dims[1] + y) * dims[2] + z + 1]++;
+    }
+    long long in_cells = 0;
+    for (int64_t i = 0; i < ncells; i++) {
+        long long size = cstart[i + 1];
+        in_cells += size * (size - 1) / 2;
+        cstart[i + 1] += cstart[i];
+    }
+    if (in_cells > MAX_PARENT_PAIRS) goto done;
+    for (int64_t j = 0; j < np; j++) {
+        if (interest[j] == 2) continue;
+        const int64_t *c = gc + 6 * j;
+        for (int64_t x = c[0]; x <= c[3]; x++)
+            for (int64_t y = c[1]; y <= c[4]; y++)
+                for (int64_t z = c[2]; z <= c[5]; z++) bucket[cstart[(x * dims[1] + y) * dims[2] + z]++] = j;
+    }
+    for (int64_t i = ncells; i > 0; i--) cstart[i] = cstart[i - 1];
+    cstart[0] = 0;
+    /* per cell, its parents gathered contiguously (the pair loop is memory bound) */
+    int64_t most = 0;
+    for (int64_t i = 0; i < ncells; i++)
+        if (cstart[i + 1] - cstart[i] > most) most = cstart[i + 1] - cstart[i];
+    int cell_workers = workers_for(threads, ncells, CELL_CHUNK);
+    local = (CellParent *)malloc(sizeof(CellParent) * (size_t)(most > 0 ? most : 1) * (size_t)cell_workers);
+    if (!local) {
+        status = -1;
+        goto done;
+    }
+    StarsCells cells = {.s = &s, .recs = recs, .gbox = gbox, .gc = gc, .bucket = bucket, .cstart = cstart,
+                        .interest = interest, .dims = dims, .group = group, .most = most > 0 ? most : 1,
+                        .local = local};
+    parallel_for(cell_workers, ncells, CELL_CHUNK, stars_cells, &cells);
+    status = 0;
+done:
+    if (status == 2) memset(s.flags, 0, (size_t)nf);
+    free(valid);
+    free(ext);
+    free(recs);
+    free(vstart);
+    free(vfaces);
+    free(gbox);
+    free(gext);
+    free(interest);
+    free(gc);
+    free(cstart);
+    free(bucket);
+    free(local);
+    free(sums);
+    free(runs);
+    return status;
+}
+
+/* `only` marking at most 1/MARKED_SHARE of the faces: the short way of tw_crossings_marked first (as
+ * intersections.MARKED_SHARE) */
+#define MARKED_SHARE 8
+
+int tw_self_intersecting(const double *v, size_t nv, const int32_t *f, size_t nf, const uint8_t *only, int children,
+                         int threads, uint8_t *flags) {
+    for (size_t i = 0; i < 3 * nf; i++)
+        if (f[i] < 0 || (size_t)f[i] >= nv) return -2;
+    uint8_t *all = NULL;
+    if (!only) {
+        all = (uint8_t *)malloc(nf > 0 ? nf : 1);
+        if (!all) return -1;
+        memset(all, 1, nf);
+    }
+    int status = -3;
+    if (only) {
+        size_t marked = 0;
+        for (size_t i = 0; i < nf; i++) marked += only[i] != 0;
+        if (MARKED_SHARE * marked <= nf) status = tw_crossings_marked(v, nv, f, nf, only, threads, flags);
+        else if (children == 4)
+            status = tw_crossings_stars(v, nv, f, nf, only, 4, threads, flags);
+    } else if (children == 4) {
+        status = tw_crossings_stars(v, nv, f, nf, all, 4, threads, flags);
+    }
+    if (status != 0 && status != -1) status = tw_crossings_grid(v, nv, f, nf, only ? only : all, threads, flags);
+    free(all);
+    return status;
+}
