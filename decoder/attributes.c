@@ -15,8 +15,8 @@
 #define C_BUCKETS 17 /* bit_length(|k|) for c symbols |k| <= 2^15 */
 #define SIGN_MODEL_MIN 8
 #define SIGN_MODEL_MAX 248
-#define S_SYMBOL_LIMIT (1L << 20)
-#define C_SYMBOL_LIMIT (1L << 15)
+#define S_MAGNITUDE_MAX (((uint32_t)1 << 20) - 1) /* s symbols lie in [-2^20, 2^20 - 1] */
+#define C_SYMBOL_LIMIT ((uint32_t)1 << 15)        /* c symbols lie in [-2^15, 2^15] */
 #define FAIR 128 /* the binary-model byte of a fair bit */
 
 /* ---- model bytes ----------------------------------------------------------------------------------------- */
@@ -155,7 +155,7 @@ int tw_decode_s(const unsigned char *section, size_t size, uint32_t n, int32_t *
     if ((status = magnitudes(&rc, &b, count, err))) goto done;
     for (size_t i = 0; i < count; i++) {
         uint32_t m = b.raw[i];
-        if (m > S_SYMBOL_LIMIT - 1) { /* cannot happen with <= 21 buckets; kept as the reference's guard */
+        if (m > S_MAGNITUDE_MAX) { /* cannot happen with <= 21 buckets; kept as the reference's guard */
             status = tw_fail(err, TW_ERROR_INVALID, "invalid .tw payload: s symbol out of range");
             goto done;
         }

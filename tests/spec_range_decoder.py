@@ -65,6 +65,7 @@ class SpecRangeDecoder:
         return self.words[j] if j < len(self.words) else 0
 
     def decode(self, c: list[int]) -> int:
+        assert self.range >= 1 << 32  # the specification's claim: range >= 2^32 before every symbol
         scale = self.range >> PRECISION  # step 1
         x = ((self.point - self.lower) & MASK) // scale  # step 2
         if x >= TOTAL:  # step 3
@@ -80,6 +81,7 @@ class SpecRangeDecoder:
             self.range = self.range << 32
             self.point = ((self.point << 32) + self._word(self.next)) & MASK
             self.next += 1
+        assert (self.point - self.lower) & MASK < self.range  # the claim behind step 3
         return i
 
     def decode_many(self, c: list[int], count: int) -> list[int]:
