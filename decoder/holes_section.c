@@ -2,8 +2,8 @@
  * holes_section.c -- the holes section of `.tw` version 2, flags bit 7 (formats/README.md "Holes"; reference
  * formats/holes.py decode_holes, whose ranks this reproduces exactly).
  *
- * K is bounded by 64 * max(N, 1) before anything is allocated; the allocation is then 14 bytes per listed face
- * (buckets, raw bit counts, gaps, ranks).
+ * K is bounded by 64 * max(N, 1), and by the surface's face count when the caller knows it, before anything is
+ * allocated; the allocation is then 14 bytes per listed face (buckets, raw bit counts, gaps, ranks).
  */
 #include <stdint.h>
 #include <stdlib.h>
@@ -20,14 +20,17 @@ static int fits(uint64_t count, size_t size) {
 }
 
 /*
- * tw_decode_holes -- the holes section (`size` bytes at `section`) of a file of n points: uint32 K, a histogram
- * (A <= 33), then the words: K gap buckets, the raw bits below each leading one. r_0 = g_0,
- * r_i = r_{i-1} + 1 + g_i. On success *ranks is a malloc'ed array of *count = K ranks (the caller frees it).
- * Errors: TW_ERROR_INVALID (truncated, K outside 1..64 max(n, 1), bad model, a stream that does not decode, a
- * rank >= 2^32), TW_ERROR_MEMORY / TW_ERROR_LIMIT (allocation); *ranks is then NULL and *count 0.
+ * tw_decode_holes_bounded -- the holes section (`size` bytes at `section`) of a file of n points: uint32 K, a
+ * histogram (A <= 33), then the words: K gap buckets, the raw bits below each leading one. r_0 = g_0,
+ * r_i = r_{i-1} + 1 + g_i. max_faces: 0, or the extracted surface's face count F0 when the caller knows it
+ * (every rank must be < F0, so K <= F0: a decoder that reads the section after marching tets bounds the
+ * allocation by its own surface instead of 64 N). On success *ranks is a malloc'ed array of *count = K ranks (the
+ * caller frees it). Errors: TW_ERROR_INVALID (truncated, K outside 1..64 max(n, 1) or above max_faces, bad
+ * model, a stream that does not decode, a rank >= 2^32 or >= max_faces), TW_ERROR_MEMORY / TW_ERROR_LIMIT
+ * (allocation); *ranks is then NULL and *count 0.
  */
-int tw_decode_holes(const unsigned char *section, size_t size, uint32_t n, int64_t **ranks, size_t *count,
-                    tw_error *err) {
+int tw_decode_holes_bounded(const unsigned char *section, size_t size, uint32_t n, uint64_t max_faces,
+                            int64_t **ranks, size_t *count, tw_error *err) {
     *ranks = NULL;
     *count = 0;
     if (size < 4) return tw_fail(err, TW_ERROR_INVALID, "invalid .tw payload: the holes section is truncated");
@@ -37,6 +40,9 @@ int tw_decode_holes(const unsigned char *section, size_t size, uint32_t n, int64
     if (k < 1 || k > bound)
         return tw_fail(err, TW_ERROR_INVALID, "invalid .tw payload: %lu hole faces for %lu points",
                        (unsigned long)k, (unsigned long)n);
+    if (max_faces && k > max_faces)
+        return tw_fail(err, TW_ERROR_INVALID, "invalid .tw payload: %lu hole faces for a surface of %llu faces",
+                       (unsigned long)k, (unsigned long long)max_faces);
     tw_models mc = {section + 4, size - 4, 0, "holes"};
     tw_model hist;
     if (tw_models_histogram(&mc, GAP_BUCKETS, &hist, err)) return TW_ERROR_INVALID;
@@ -66,6 +72,12 @@ int tw_decode_holes(const unsigned char *section, size_t size, uint32_t n, int64
             status = tw_fail(err, TW_ERROR_INVALID, "invalid .tw payload: hole face rank out of range");
             goto done;
         }
+        if (max_faces && (uint64_t)rank >= max_faces) { /* geometry/holes.py's check, when F0 is known */
+            status = tw_fail(err, TW_ERROR_INVALID,
+                             "invalid .tw file: hole face rank %lld but the surface has %llu faces", (long long)rank,
+                             (unsigned long long)max_faces);
+            goto done;
+        }
         r[i] = rank;
     }
 done:
@@ -79,4 +91,10 @@ done:
     *ranks = r;
     *count = kk;
     return TW_OK;
+}
+
+/* tw_decode_holes -- tw_decode_holes_bounded without a face count (K bounded by 64 max(n, 1) only). */
+int tw_decode_holes(const unsigned char *section, size_t size, uint32_t n, int64_t **ranks, size_t *count,
+                    tw_error *err) {
+    return tw_decode_holes_bounded(section, size, n, 0, ranks, count, err);
 }

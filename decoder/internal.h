@@ -235,6 +235,11 @@ int tw_decode_c(const unsigned char *section, size_t size, uint32_t n, int sh_de
  * *count (1..64 * max(n, 1)) strictly increasing face ranks < 2^32 (the caller frees it); NULL / 0 on failure. */
 int tw_decode_holes(const unsigned char *section, size_t size, uint32_t n, int64_t **ranks, size_t *count,
                     tw_error *err);
+/* The same with K also bounded by max_faces when it is not 0: the extracted surface's face count F0, which bounds
+ * K (every rank is < F0) and so the allocation by the decoder's own surface rather than by 64 N (up to 2^28 faces,
+ * 14 bytes each, for a hostile file of 2^22 points). */
+int tw_decode_holes_bounded(const unsigned char *section, size_t size, uint32_t n, uint64_t max_faces,
+                            int64_t **ranks, size_t *count, tw_error *err);
 
 /* ---- filter: crossing checks, Taubin, creases, Loop, restores, holes (intersect.c, filter.c, loop.c, holes.c) - */
 

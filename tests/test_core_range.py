@@ -58,6 +58,7 @@ def lib():
     lib.tw_decode_s_residuals.argtypes = [ctypes.c_char_p, sz, ctypes.c_uint32, vp, err]
     lib.tw_decode_c.argtypes = [ctypes.c_char_p, sz, ctypes.c_uint32, ip, vp, err]
     lib.tw_decode_holes.argtypes = [ctypes.c_char_p, sz, ctypes.c_uint32, vp, vp, err]
+    lib.tw_decode_holes_bounded.argtypes = [ctypes.c_char_p, sz, ctypes.c_uint32, ctypes.c_uint64, vp, vp, err]
     return lib
 
 
@@ -444,9 +445,14 @@ def c_c(lib, section: bytes, n: int, degree: int):
     return status, out[: n * q].reshape(n, q).astype(np.int64), err
 
 
-def c_holes(lib, section: bytes, n: int):
+def c_holes(lib, section: bytes, n: int, faces: int | None = None):
+    """tw_decode_holes, or tw_decode_holes_bounded with the surface's face count `faces`."""
     ptr, count, err = ctypes.POINTER(ctypes.c_int64)(), ctypes.c_size_t(0), TwError()
-    status = lib.tw_decode_holes(section, len(section), n, ctypes.byref(ptr), ctypes.byref(count), err)
+    out = (ctypes.byref(ptr), ctypes.byref(count), err)
+    if faces is None:
+        status = lib.tw_decode_holes(section, len(section), n, *out)
+    else:
+        status = lib.tw_decode_holes_bounded(section, len(section), n, faces, *out)
     if status:
         assert not ptr and count.value == 0
         return status, None, err
@@ -510,6 +516,22 @@ def test_c_all_degrees_and_holes_extremes(lib):
         section = holes.encode_holes(np.array(ranks))
         status, got, err = c_holes(lib, section, 4)
         assert status == OK and np.array_equal(got, holes.decode_holes(section, 4)), err.message
+
+
+def test_holes_bounded_by_the_surface(lib):
+    """With the surface's F0 known, K > F0 is refused before decoding, and a rank >= F0 as geometry/holes.py does."""
+    ranks = np.array([3, 4, 90, 1000])
+    section = holes.encode_holes(ranks)
+    for faces in (0, 1001, 5000):
+        status, got, err = c_holes(lib, section, 100, faces)
+        assert status == OK and np.array_equal(got, ranks), err.message
+    status, _, err = c_holes(lib, section, 100, 1000)  # rank 1000 is not below F0
+    assert status == INVALID and b"hole face rank 1000 but the surface has 1000 faces" in err.message
+    status, _, err = c_holes(lib, section, 100, 3)  # K = 4 > F0: refused before any allocation
+    assert status == INVALID and b"4 hole faces for a surface of 3 faces" in err.message
+    huge = struct.pack("<I", 2**28) + bytes([2, 255, 0])  # 2^28 faces coded in no words: allowed for 2^22 points
+    status, _, err = c_holes(lib, huge, 2**22, 10**6)
+    assert status == INVALID and b"for a surface of 1000000 faces" in err.message
 
 
 # -----------------------------------------------------------------------------------------------------------
