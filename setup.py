@@ -41,8 +41,9 @@ setup(
         ),
         Extension(
             "tetweave_codec.geometry._mt_native",
-            ["tetweave_codec/geometry/_mt_native.c"],
-            depends=["tetweave_codec/geometry/_native_sort.h"],
+            ["tetweave_codec/geometry/_mt_native.c", "decoder/marching.c", "decoder/common.c"],
+            include_dirs=["decoder"],
+            depends=["decoder/internal.h", "decoder/tetweave_decoder.h", "decoder/radix.h"],
             extra_compile_args=FLAGS,
             optional=True,
         ),

@@ -136,31 +136,6 @@ typedef struct tw_surface {
 
 void tw_surface_free(tw_surface *surface);
 
-/* ---- exact Delaunay and marching tets (delaunay.c, marching.c) ------------------------------------------- */
-
-/* The exact Delaunay's tets and hull faces (formats/README.md, "The exact Delaunay"): tets nt * 4 and hull
- * nh * 3 int32 indices into the caller's cells, positively oriented / outward, in the canonical order; both NULL
- * and 0 when there are fewer than 4 distinct or only coplanar points. Release with tw_tets_free. */
-typedef struct tw_tets {
-    size_t nt, nh;
-    int32_t *tets;
-    int32_t *hull;
-} tw_tets;
-
-#define TW_DELAUNAY_MAX_BITS 23         /* cell coordinates in [0, 2^23 - 1] */
-#define TW_DELAUNAY_MAX_POINTS (1 << 26)
-
-/* Tetrahedralize n cells (n * 3 int32, any integers in [0, 2^23)); duplicates: only the lowest index is a vertex.
- * A file's grid cells (b bits) give the same arrays as their lattice points (tw_snap_to_lattice of the dequantized
- * points, k -> k 2^(23-b) + 2^(22-b): one uniform scale and a translation, which keep every predicate's sign and
- * every rank). Errors: TW_ERROR_ARGUMENT
- * (coordinates out of range, n > 2^26), TW_ERROR_MEMORY, TW_ERROR_LIMIT (a degenerate set needing more than
- * max(64 n + 4096, 2^22) tets), TW_ERROR_INTERNAL ("flat tet ...", "walk ..."; never expected). */
-int tw_delaunay(const int32_t *cells, size_t n, tw_tets *out, tw_error *err);
-void tw_tets_free(tw_tets *tz);
-/* geometry/delaunay.py snap_to_lattice: n float points (n * 3 doubles, finite) -> cells (n * 3 int32). */
-int tw_snap_to_lattice(const double *points, size_t n, int32_t *cells, tw_error *err);
-
 /* ---- range coder (range.c) and the s, c and holes sections (attributes.c, holes_section.c) ---------------- */
 /* formats/README.md, "Entropy coder", specifies the decoder these functions implement; every function returns
  * TW_OK or a tw_status set through tw_fail (a stream that does not decode is TW_ERROR_INVALID). */
@@ -240,6 +215,7 @@ int tw_decode_holes(const unsigned char *section, size_t size, uint32_t n, int64
  * 14 bytes each, for a hostile file of 2^22 points). */
 int tw_decode_holes_bounded(const unsigned char *section, size_t size, uint32_t n, uint64_t max_faces,
                             int64_t **ranks, size_t *count, tw_error *err);
+
 
 /* ---- filter: crossing checks, Taubin, creases, Loop, restores, holes (intersect.c, filter.c, loop.c, holes.c) - */
 

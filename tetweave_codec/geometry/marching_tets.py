@@ -46,6 +46,7 @@ import numpy as np
 
 from tetweave_codec.errors import TopologyError
 from tetweave_codec.geometry.sh import degree_from_num_coeffs, sh_basis_terms, sh_parity
+from tetweave_codec.geometry.tanh import tanh as decoder_tanh
 
 if TYPE_CHECKING:  # torch is imported lazily: the numpy decoder path must not pay for it
     import torch
@@ -403,8 +404,8 @@ def _edge_vertices(points, s, c, i, j):
         import torch
 
         tanh, where, sqrt = torch.tanh, torch.where, torch.sqrt
-    else:
-        tanh, where, sqrt = np.tanh, np.where, np.sqrt
+    else:  # the format's tanh (geometry/tanh.py): np.tanh is not the same function on every CPU
+        tanh, where, sqrt = decoder_tanh, np.where, np.sqrt
     p_i, p_j = points[i], points[j]
     s_i, s_j = s[i], s[j]
     if c is not None and c.shape[-1] > 0:
