@@ -58,6 +58,57 @@ def test_components_and_closed_parts():
     assert split_parts(*soup).closed.tolist() == [0]
 
 
+def welded(*meshes):
+    """One mesh of `meshes` ((V,3), (F,3)) with vertices at equal positions merged: an assembly exported as one mesh,
+    whose parts share the edges and vertices where they touch."""
+    v, f = scenes.join(*meshes)
+    unique, inverse = np.unique(v, axis=0, return_inverse=True)
+    return unique, inverse.reshape(-1)[f]
+
+
+def box(size=(1.0, 1.0, 1.0), at=(0.0, 0.0, 0.0)):
+    m = trimesh.creation.box(size)
+    return np.asarray(m.vertices) + np.asarray(at, dtype=np.float64), np.asarray(m.faces, dtype=np.int64)
+
+
+def tet(apex):
+    v = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 1.0], apex, [1.0, 0.0, 0.5]])
+    f = np.array([[0, 1, 2], [0, 2, 3], [0, 3, 1], [1, 3, 2]])
+    if np.linalg.det(v[1:] - v[0]) > 0:  # outward: the faces above are outward for a negative determinant
+        f = f[:, ::-1]
+    return v, f
+
+
+def test_welded_parts_sharing_edges_are_closed_parts():
+    # boxes sharing one edge (4 faces on it), boxes face to face (4 faces on each edge of the contact square), two
+    # tets sharing an edge: each part is closed, none is left to the renders
+    for meshes in (
+        (box(), box(at=(1.0, 1.0, 0.0))),
+        (box(), box(at=(1.0, 0.0, 0.0))),
+        (tet([0.0, 1.0, 0.5]), tet([-0.7, -0.7, 0.5])),
+        (box(), box(at=(1.0, 1.0, 0.0)), box(at=(2.0, 0.0, 0.0)), box(at=(1.0, -1.0, 0.0))),  # a ring around an edge
+    ):
+        v, f = welded(*meshes)
+        p = split_parts(v, f)
+        assert p.count == len(meshes) and len(p.closed) == len(meshes) and not p.rest.any(), meshes
+        assert not p.inverted.any()
+        assert np.bincount(p.component).tolist() == [len(m[1]) for m in meshes]
+    # welded boxes sharing an edge go to their exact union (auto), which is their two closed surfaces
+    v, f = welded(box(), box(at=(1.0, 1.0, 0.0)))
+    u = closed_union(v, f, split_parts(v, f))
+    assert np.isclose(u.area, 12.0) and closed_and_oriented(u.vertices, u.faces) is False  # 2 solids, 1 edge shared
+
+
+def test_welded_parts_that_do_not_alternate_around_an_edge():
+    # an inside-out box welded to a box along an edge: around the shared edge the faces do not bound disjoint
+    # wedges, so no face is joined across it; each box is still one part through its other edges, closed, the
+    # second inside out (turned outwards for the union)
+    inside_out = (box(at=(1.0, 1.0, 0.0))[0], box()[1][:, ::-1])
+    v, f = welded(box(), inside_out)
+    p = split_parts(v, f)
+    assert p.closed.tolist() == [0, 1] and p.inverted.tolist() == [False, True] and not p.rest.any()
+
+
 def test_parts_joined_at_a_vertex_are_two():
     """Two balls whose icosphere vertices coincide where they overlap: welded, they share vertices, not edges."""
     v, f = scenes.join(ball(0.6, (-0.3, 0, 0)), ball(0.6, (0.3, 0, 0)))

@@ -72,24 +72,88 @@ class Union:
     parts_area: float
 
 
-def _components(faces: np.ndarray) -> tuple[int, np.ndarray]:
-    """(count, label (F,)): connected components of faces (F,3) joined across shared edges (parts that only touch
-    at a vertex are two), numbered in the order of their first face."""
+def _components(vertices: np.ndarray, faces: np.ndarray, usable: np.ndarray) -> tuple[int, np.ndarray]:
+    """(count, label (F,)): the parts of faces (F,3) (welded indices into vertices (V,3)), numbered in the order of
+    their first face; faces not `usable` (degenerate) are parts of their own.
+
+    Faces are joined across an edge used by exactly two faces, and across an edge used by more (parts welded along
+    a shared edge, as an assembly exported as one mesh has them) only in the pairs that bound one solid wedge
+    (`_wedge_pairs`): two boxes sharing an edge stay two closed parts, a part's own faces stay one. Parts that only
+    touch at a vertex are two."""
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
-    edges = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
-    _, edge_id = np.unique(edges, axis=0, return_inverse=True)
-    edge_id = edge_id.reshape(-1)
-    rows = np.tile(np.arange(len(faces)), 3)
-    size = len(faces) + int(edge_id.max()) + 1
-    graph = coo_matrix((np.ones(len(rows), dtype=np.int8), (rows, len(faces) + edge_id)), shape=(size, size))
+    n_faces = len(faces)
+    rows = np.flatnonzero(usable)
+    uf = faces[rows]
+    tail = np.concatenate([uf[:, 0], uf[:, 1], uf[:, 2]])
+    head = np.concatenate([uf[:, 1], uf[:, 2], uf[:, 0]])
+    third = np.concatenate([uf[:, 2], uf[:, 0], uf[:, 1]])
+    owner = np.tile(rows, 3)
+    lo, hi = np.minimum(tail, head), np.maximum(tail, head)
+    order = np.lexsort((hi, lo))
+    lo, hi = lo[order], hi[order]
+    start = np.flatnonzero(np.r_[True, (lo[1:] != lo[:-1]) | (hi[1:] != hi[:-1])])
+    size = np.diff(np.r_[start, len(lo)])
+    pair_a, pair_b = [], []
+    two = start[size == 2]
+    pair_a.append(owner[order[two]])
+    pair_b.append(owner[order[two + 1]])
+    many = size > 2
+    if many.any():
+        a, b = _wedge_pairs(vertices, tail[order], head[order], third[order], start[many], size[many])
+        pair_a.append(owner[order[a]])
+        pair_b.append(owner[order[b]])
+    pa, pb = np.concatenate(pair_a), np.concatenate(pair_b)
+    graph = coo_matrix((np.ones(len(pa), dtype=np.int8), (pa, pb)), shape=(n_faces, n_faces))
     _, labels = connected_components(graph, directed=False)
-    face_labels = labels[: len(faces)]
     # renumber in the order of each component's first face (deterministic, independent of scipy's numbering)
-    _, first, inverse = np.unique(face_labels, return_index=True, return_inverse=True)
-    order = np.argsort(np.argsort(first))
-    return len(first), order[inverse.reshape(-1)].astype(np.int64)
+    _, first, inverse = np.unique(labels, return_index=True, return_inverse=True)
+    rank = np.argsort(np.argsort(first))
+    return len(first), rank[inverse.reshape(-1)].astype(np.int64)
+
+
+def _wedge_pairs(
+    vertices: np.ndarray, tail: np.ndarray, head: np.ndarray, third: np.ndarray, start: np.ndarray, size: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Which faces around edges used by more than two faces bound one solid wedge: rows (a, b) of the pairs.
+
+    tail, head, third (M,): each face's use of an edge and its third corner, rows grouped by edge; start, size:
+    the groups of the edges used by more than two faces. Around the edge's axis e (from its smaller to its larger
+    vertex index), a face that runs the edge along e has its outward normal turning counter-clockwise (towards
+    larger angles of its third corner about e), so its solid lies clockwise of it; a face that runs against e has
+    its solid counter-clockwise. Sorted by angle, each face running against e therefore opens a wedge that the
+    next face closes, when that one runs along e. Faces of closed parts that touch along the edge without
+    overlapping alternate so around it, and are paired part by part; an edge around which they do not alternate
+    (solids that overlap there, inconsistent orientation) joins nothing: its faces go to parts that are not closed,
+    which the renders decide about."""
+    group = np.repeat(np.arange(len(start)), size)
+    offsets = np.cumsum(np.r_[0, size[:-1]])
+    pos = np.arange(int(size.sum())) - np.repeat(offsets, size)  # each row's place in its edge's group
+    rows = np.repeat(start, size) + pos
+    t, h, c = tail[rows], head[rows], third[rows]
+    lo = np.minimum(t, h)
+    hi = np.maximum(t, h)
+    axis = vertices[hi] - vertices[lo]
+    axis /= np.maximum(np.linalg.norm(axis, axis=1, keepdims=True), 1e-300)
+    # a reference direction perpendicular to each edge, the same for all its faces: the first face's third corner
+    first = np.repeat(offsets, size)
+    w = vertices[c] - vertices[lo]
+    w -= np.einsum("ij,ij->i", w, axis)[:, None] * axis
+    ref = w[first] / np.maximum(np.linalg.norm(w[first], axis=1, keepdims=True), 1e-300)
+    other = np.cross(axis, ref)
+    angle = np.arctan2(np.einsum("ij,ij->i", w, other), np.einsum("ij,ij->i", w, ref))
+    along = t == lo
+    order = np.lexsort((angle, group))
+    g, al = group[order], along[order]
+    nxt = offsets[g] + (pos + 1) % size[g]
+    opener = ~al
+    closes = al[nxt]
+    ok_edge = np.ones(len(start), dtype=bool)
+    np.logical_and.at(ok_edge, g[opener], closes[opener])
+    ok_edge &= np.bincount(g, weights=al, minlength=len(start)) * 2 == size
+    take = opener & ok_edge[g]
+    return rows[order[take]], rows[order[nxt[take]]]
 
 
 def _closed_manifold(wf: np.ndarray) -> bool:
@@ -155,8 +219,8 @@ def _moved_out(m):
 
 
 def split_parts(vertices: np.ndarray, faces: np.ndarray) -> Parts:
-    """The connected components of the input (vertices (V,3), faces (F,3)) after welding by position, and which
-    are closed parts (module docstring)."""
+    """The parts of the input (vertices (V,3), faces (F,3)) after welding by position, and which are closed parts
+    (module docstring). Vectorised over parts: one pass over the edges, one manifold3d check per closed part."""
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
     _, first, inverse = np.unique(v, axis=0, return_index=True, return_inverse=True)
@@ -164,26 +228,49 @@ def split_parts(vertices: np.ndarray, faces: np.ndarray) -> Parts:
     wf = weld[f]
     degenerate = (wf[:, 0] == wf[:, 1]) | (wf[:, 1] == wf[:, 2]) | (wf[:, 2] == wf[:, 0])
     degenerate |= ~np.isfinite(v[f]).all(axis=(1, 2))
-    count, component = _components(wf)
-    closed, inverted = [], []
-    rest = degenerate.copy()
+    count, component = _components(v, wf, ~degenerate)
+    candidate = _closed_components(wf, component, count) & (np.bincount(component, minlength=count) >= 4)
+    candidate &= np.bincount(component, weights=degenerate, minlength=count) == 0
+    # signed volume and bounding box of each component (flat ones are two coincident sheets, not solids)
+    a, b, c = (v[wf[:, k]] for k in range(3))
+    volume = np.bincount(component, weights=np.einsum("ij,ij->i", a, np.cross(b, c)), minlength=count) / 6.0
+    corners = v[wf].reshape(-1, 3)
+    lo = np.full((count, 3), np.inf)
+    hi = np.full((count, 3), -np.inf)
+    np.minimum.at(lo, np.repeat(component, 3), corners)
+    np.maximum.at(hi, np.repeat(component, 3), corners)
+    box = np.prod(np.maximum(hi - lo, 1e-12), axis=1)
+    candidate &= np.abs(volume) > MIN_VOLUME_SHARE * box
     order = np.argsort(component, kind="stable")
     bounds = np.searchsorted(component[order], np.arange(count + 1))
-    for c in range(count):
-        idx = order[bounds[c] : bounds[c + 1]]
-        if degenerate[idx].any() or len(idx) < 4 or not _closed_manifold(wf[idx]):
-            rest[idx] = True
-            continue
+    closed = []
+    for comp in np.flatnonzero(candidate):
+        idx = order[bounds[comp] : bounds[comp + 1]]
         used, local = np.unique(wf[idx], return_inverse=True)
-        pv, pf = v[used], local.reshape(-1, 3)
-        volume = _signed_volume(pv, pf)
-        box = np.prod(np.maximum(pv.max(axis=0) - pv.min(axis=0), 1e-12))
-        if abs(volume) <= MIN_VOLUME_SHARE * box or _manifold(pv, pf) is None:
-            rest[idx] = True
-            continue
-        closed.append(c)
-        inverted.append(volume < 0)
-    return Parts(weld, component, np.asarray(closed, dtype=np.int64), np.asarray(inverted, dtype=bool), rest, count)
+        if _manifold(v[used], local.reshape(-1, 3)) is not None:
+            closed.append(comp)
+    closed = np.asarray(closed, dtype=np.int64)
+    is_closed = np.zeros(count, dtype=bool)
+    is_closed[closed] = True
+    rest = degenerate | ~is_closed[component]
+    return Parts(weld, component, closed, volume[closed] < 0, rest, count)
+
+
+def _closed_components(wf: np.ndarray, component: np.ndarray, count: int) -> np.ndarray:
+    """bool (count,): whether each component's faces (welded faces wf (F,3), component (F,)) are a closed,
+    consistently oriented edge-manifold: within the component every edge used by exactly two faces, once in each
+    direction."""
+    tail = wf.reshape(-1)
+    head = wf[:, [1, 2, 0]].reshape(-1)
+    comp = np.repeat(component, 3)
+    lo, hi = np.minimum(tail, head), np.maximum(tail, head)
+    order = np.lexsort((hi, lo, comp))
+    lo, hi, comp, along = lo[order], hi[order], comp[order], (tail == np.minimum(tail, head))[order]
+    start = np.flatnonzero(np.r_[True, (lo[1:] != lo[:-1]) | (hi[1:] != hi[:-1]) | (comp[1:] != comp[:-1])])
+    size = np.diff(np.r_[start, len(lo)])
+    good = (size == 2) & (np.add.reduceat(along.astype(np.int64), start) == 1)
+    bad = np.bincount(comp[start[~good]], minlength=count)
+    return bad == 0
 
 
 def closed_union(vertices: np.ndarray, faces: np.ndarray, parts: Parts) -> Union:
