@@ -73,7 +73,8 @@ function fitCamera(geometry) {
   const r = radius > 0 ? radius : 1;
   const distance = (r / Math.sin((camera.fov * Math.PI) / 360)) * 1.1;
   controls.target.copy(center);
-  camera.position.set(center.x, center.y + 0.25 * distance, center.z + distance);
+  // a three-quarter view: meshes come in any orientation, and one seen straight along an axis often hides its shape
+  camera.position.set(center.x + 0.6 * distance, center.y + 0.35 * distance, center.z + 0.72 * distance);
   camera.near = distance / 100;
   camera.far = distance * 10;
   camera.updateProjectionMatrix();
