@@ -57,8 +57,9 @@
  *        o'_a = det2(q', b', c'), o'_b = det2(a', q', c'), o'_c = det2(a', b', q'),
  *    q conflicts iff sign(O2) Phi2 < 0 (h(q) below the lifted plane through a, b, c, at q). Phi2 = Phi2_0 + the
  *    delta terms as above; if sign(O2) Phi2_0 != 0 it decides, else in descending rank over a, b, c, q: q -> no
- *    conflict; a vertex v with o' = orient2d(triangle with v replaced by q) != 0 -> conflict iff sign(o') = sign(O2).
- *    This is the epsilon -> 0 limit of rule 3 restricted to the hull face's plane, so the hull triangulation is
+ *    conflict; a vertex v with o' = orient2d(triangle with v replaced by q) != 0 -> conflict iff sign(o') = sign(O2);
+ *    o' = 0: go on to the next point. orient2d = sign det2, det2(a', b', c') = (b'_0 - a'_0)(c'_1 - a'_1) -
+ *    (b'_1 - a'_1)(c'_0 - a'_0) on the two kept axes in ascending order. This is the epsilon -> 0 limit of rule 3 restricted to the hull face's plane, so the hull triangulation is
  *    the regular triangulation's: the 2-D regular triangulation of the points on each planar hull face.
  * 5. Output. tets (T, 4): every tet positively oriented (orient3d > 0 exactly; none is flat), indices into the
  *    caller's array. Canonical order: each tet is permuted evenly (orientation kept) so that its smallest index

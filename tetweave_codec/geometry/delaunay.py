@@ -66,9 +66,9 @@ Input: N integer points p_i = (x_i, y_i, z_i), i = 0..N-1, with 0 <= x_i, y_i, z
 
    q conflicts iff sign(O2) Phi2 < 0 (h(q) below the lifted plane through a, b, c, at q). If the unperturbed part
    is 0, go through a, b, c, q in descending rank: q -> no conflict; a vertex v whose orient2d with v replaced by q
-   is non-zero -> conflict iff that sign equals sign(O2). This is rule 3 restricted to the plane of a hull face,
-   so the hull triangulation is the regular triangulation's (the 2-D regular triangulation of the points on each
-   planar face of the hull).
+   is non-zero -> conflict iff that sign equals sign(O2); zero -> go on to the next point. This is rule 3
+   restricted to the plane of a hull face, so the hull triangulation is the regular triangulation's (the 2-D
+   regular triangulation of the points on each planar face of the hull).
 5. Output. tets (T, 4) int64: every tet positively oriented (orient3d > 0 exactly; never flat), indices into the
    caller's array. Canonical order: each tet is permuted evenly (orientation kept) so that its smallest index
    comes first and the smallest of the other three second; tets sorted lexicographically. hull_faces (H, 3)
