@@ -243,7 +243,14 @@ int tw_parse(const unsigned char *data, size_t size, tw_file *file, tw_error *er
         return status;
     }
     const uint32_t n = file->n;
-    if (n == 0) return TW_OK; /* every section is empty (checked): no points, no arrays */
+    if (n == 0) { /* every section is empty (checked): no points, no arrays */
+        if (with_holes) { /* a holes section needs points: its empty section is truncated (holes.decode_holes) */
+            status = tw_decode_holes(data + file->sizes[0], 0, 0, &file->holes, &file->hole_count, err);
+            if (!status) status = tw_fail(err, TW_ERROR_INVALID, "invalid .tw payload: a holes section without points");
+            tw_file_free(file);
+        }
+        return status;
+    }
 
     const unsigned char *sec[4];
     sec[0] = data + file->sizes[0];

@@ -13,6 +13,7 @@ stages) against the Python reference, formats.tw.unpack.
 from __future__ import annotations
 
 import ctypes
+import struct
 import subprocess
 from pathlib import Path
 
@@ -24,7 +25,7 @@ from tetweave_codec.benchmarks import fuzz
 from tetweave_codec.errors import ContainerError
 from tetweave_codec.formats import predict, tw
 from tetweave_codec.formats import quantize as Q
-from tetweave_codec.formats.common import BITS_EXACT
+from tetweave_codec.formats.common import BITS_EXACT, FLAG_HOLES, FLAG_S_PREDICTED, seal
 
 REPO = Path(__file__).resolve().parent.parent
 SOURCES = ["range.c", "attributes.c", "holes_section.c", "container.c", "octree.c", "predict.c", "dequantize.c"]
@@ -184,6 +185,21 @@ def test_short_and_foreign_bytes_are_invalid(lib, data):
     assert reference(data) is None
     status, message, _ = parse(lib, data)
     assert status == TW_ERROR_INVALID and message and "\n" not in message
+
+
+@pytest.mark.parametrize("flags", [0, FLAG_S_PREDICTED, FLAG_HOLES, FLAG_HOLES | FLAG_S_PREDICTED])
+def test_zero_points(lib, flags):
+    # N = 0 with every section empty is a valid (empty) file, except with a holes section, whose K needs 4 bytes
+    count = 4 if flags & FLAG_HOLES else 3
+    header = struct.pack("<8sHBbBI4df", MAGIC, 2, flags, -1, 6 | BITS_EXACT, 0, 1.0, 0.0, 0.0, 0.0, 1e-3)
+    data = seal(header + bytes(4 * count))
+    ref = reference(data)
+    status, message, parsed = parse(lib, data)
+    if flags & FLAG_HOLES:
+        assert ref is None and status == TW_ERROR_INVALID and message
+    else:
+        assert ref is not None and status == TW_OK
+        assert_same(parsed, ref)
 
 
 def hostile_corpus(count: int, start: int = 0):
