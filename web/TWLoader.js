@@ -106,10 +106,12 @@ export class TWLoader extends Loader {
   /** The worker's raw answer: { mesh: { positions, indices, vertexCount, faceCount, stats }, ms }. */
   async decode(buffer, options = {}) {
     const level = options.level ?? this.level;
-    const slot = await this._slot();
+    const module = await this._wasmModule();
     const id = this._nextId++;
     const copy = buffer instanceof ArrayBuffer ? buffer.slice(0) : new Uint8Array(buffer).slice().buffer;
     return new Promise((resolve, reject) => {
+      // the slot is chosen and the task registered in one step: concurrent loads see each other's tasks
+      const slot = this._slot(module);
       slot.pending.set(id, { resolve, reject });
       slot.worker.postMessage({ type: "decode", id, buffer: copy, level }, [copy]);
     });
@@ -131,8 +133,7 @@ export class TWLoader extends Loader {
     return this._module;
   }
 
-  async _slot() {
-    const module = await this._wasmModule();
+  _slot(module) {
     if (this._workers.length < this.workerLimit) {
       const free = this._workers.find((slot) => slot.pending.size === 0);
       if (free) return free;
