@@ -18,10 +18,13 @@ Everything here is exact and reproducible by an independent decoder:
   binary64 with every operation rounded, in the order written here (numpy applies each elementwise operation
   separately, with no fused multiply-add; Python floats are binary64).
 
-A compiled fast path (formats/_native.c, built by setup.py when a C compiler is there) runs the neighbour search,
-the weights and the sequential pass; this module stays the reference, and the fallback whenever the extension is
-absent or `NATIVE` is False (environment TETWEAVE_NATIVE=0). Both must give the same neighbours, weights and
-symbols bit for bit (tests/test_native.py): the C code is built with -ffp-contract=off and without -ffast-math.
+A compiled fast path (formats/_native.c, a binding over the C decoder core's decoder/predict.c, built by setup.py
+when a C compiler is there) runs the neighbour search, the weights and the sequential pass; this module stays the
+reference, and the fallback whenever the extension is absent or `NATIVE` is False (environment TETWEAVE_NATIVE=0).
+Both must give the same neighbours, weights and symbols bit for bit (tests/test_native.py): the C code is built with
+-ffp-contract=off and without -ffast-math. The points over the search's work bound go to `_tree_rows` here; the C
+decoder answers them itself by an exact search over a box hierarchy of the Morton-ordered cells (the same
+neighbours: tests/test_core_container.py).
 """
 
 from __future__ import annotations
