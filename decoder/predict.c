@@ -89,9 +89,10 @@ static int build_table(cell_table *t, const int64_t *morton, int64_t n, int leve
     int bits = 4;
     while (((int64_t)1 << bits) < 2 * cells) bits++;
     uint64_t size = (uint64_t)1 << bits;
-    t->key = (uint64_t *)malloc(size * sizeof(uint64_t));
-    t->start = (int64_t *)malloc(size * sizeof(int64_t));
-    t->end = (int64_t *)malloc(size * sizeof(int64_t));
+    if (size > SIZE_MAX / sizeof(uint64_t)) return -1; /* a 32-bit target (wasm32) with a huge n */
+    t->key = (uint64_t *)malloc((size_t)size * sizeof(uint64_t));
+    t->start = (int64_t *)malloc((size_t)size * sizeof(int64_t));
+    t->end = (int64_t *)malloc((size_t)size * sizeof(int64_t));
     if (!t->key || !t->start || !t->end) return -1;
     t->mask = size - 1;
     t->shift = 64 - bits;
