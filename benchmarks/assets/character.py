@@ -4,7 +4,7 @@ Parts, in metres (1.8 tall), never booleaned:
 
     body     a smooth union (polynomial smooth minimum) of a torso and neck capsule, a head sphere, arm and leg
              capsules, meshed by manifold3d's level set and decimated (closed)
-    shirt    an open tube around the torso, 2 cm off it, single-sided, open at both ends (the body shows through)
+    shirt    an open tube around the torso, about 5 mm off it, single-sided, open at both ends
     belt     a closed ring through the shirt's lower rim and the body
     eyes     two spheres half sunk into the head (closed), a pupil each: an open disk just in front of the eye
     teeth    an upper row of six closed boxes half inside the head, neighbours sharing a side (welded: edges with
@@ -13,16 +13,17 @@ Parts, in metres (1.8 tall), never booleaned:
              circle (welded, edges with four faces)
 
 `clean()`: the same character as a careful artist would deliver it: one closed surface, manifold3d's union of the
-closed parts and of each open part thickened to a closed shell SHEET thick around it. It is the clean input the
-encodes are compared with; the truth of what a viewer sees is the ray-cast samples of the parts
-(`raycast.visible_samples`), since the union of open surfaces has no boolean definition.
+closed parts, the shirt as a filled tube (its side the sheet's polygon), the other open parts thickened to closed
+shells SHEET thick. It is the clean input the encodes are compared with; the truth of what a viewer sees is the
+ray-cast samples of the parts (`raycast.visible_samples`): the union of open surfaces has no boolean definition.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-SHEET = 0.002  # the clean version's thickness of the open parts
+SHEET = 0.0005  # the clean version's thickness of the open parts
+SHIRT = (0.175, 0.98, 1.30)  # radius, bottom, top: 5 mm off the torso's capsule (the smooth union pokes through)
 EDGE = 0.03  # the level set's edge length
 BODY_FACES = 3600  # the body decimated to this (fast-simplification's quadrics): small committed files
 
@@ -166,7 +167,7 @@ def parts() -> list[tuple[str, tuple[np.ndarray, np.ndarray], bool]]:
     import manifold3d
 
     out = [("body", body(), True)]
-    out.append(("shirt", tube(0.19, 0.98, 1.30), False))
+    out.append(("shirt", tube(*SHIRT), False))
     belt = manifold3d.Manifold.cylinder(0.04, 0.205, 0.205, 48).translate((0, 0, 0.96)) - manifold3d.Manifold.cylinder(
         0.06, 0.16, 0.16, 48
     ).translate((0, 0, 0.95))
@@ -213,7 +214,11 @@ def clean(character=None) -> tuple[np.ndarray, np.ndarray]:
     import manifold3d
 
     solids = []
-    for _, (v, f), closed in character or parts():
+    for name, (v, f), closed in character or parts():
+        if name == "shirt":  # a filled tube: the torso under it is no part of a clean export either
+            r, z0, z1 = SHIRT
+            solids.append(manifold3d.Manifold.cylinder(z1 - z0, r, r, 40).translate((0, 0, z0)))
+            continue
         if not closed:
             v, f = _thick(v, f, SHEET)
         m = manifold3d.Manifold(manifold3d.Mesh64(vert_properties=np.ascontiguousarray(v, dtype=np.float64),
