@@ -42,7 +42,10 @@ int tw_taubin(double *v, size_t nv, const int32_t *rows, size_t ne, int steps, d
             }
             for (size_t i = 0; i < nv; i++) {
                 if (!(deg[i] > 0)) continue;
-                for (int k = 0; k < 3; k++) v[3 * i + k] = v[3 * i + k] + fac * (sum[3 * i + k] / deg[i] - v[3 * i + k]);
+                for (int k = 0; k < 3; k++) {
+                    double x = v[3 * i + k];
+                    v[3 * i + k] = x + fac * (sum[3 * i + k] / deg[i] - x);
+                }
             }
         }
     free(sum);
@@ -63,8 +66,10 @@ int tw_crease_rows(const double *v, const int32_t *f, size_t nf, const int32_t *
     double *normal = (double *)malloc(sizeof(double) * 3 * (nf > 0 ? nf : 1));
     if (!normal) return -1;
     for (size_t i = 0; i < nf; i++) {
-        const double *p0 = v + 3 * (size_t)f[3 * i], *p1 = v + 3 * (size_t)f[3 * i + 1], *p2 = v + 3 * (size_t)f[3 * i + 2];
-        double u[3] = {p1[0] - p0[0], p1[1] - p0[1], p1[2] - p0[2]}, w[3] = {p2[0] - p0[0], p2[1] - p0[1], p2[2] - p0[2]};
+        const double *p0 = v + 3 * (size_t)f[3 * i], *p1 = v + 3 * (size_t)f[3 * i + 1];
+        const double *p2 = v + 3 * (size_t)f[3 * i + 2];
+        double u[3] = {p1[0] - p0[0], p1[1] - p0[1], p1[2] - p0[2]};
+        double w[3] = {p2[0] - p0[0], p2[1] - p0[1], p2[2] - p0[2]};
         double *n = normal + 3 * i;
         n[0] = u[1] * w[2] - u[2] * w[1];
         n[1] = u[2] * w[0] - u[0] * w[2];
@@ -147,7 +152,8 @@ static int checked_control(const tw_surface *c, double scale, const double *offs
         for (size_t i = 0; i < c->nf; i++) count += bad[i] != 0;
         char buf[40];
         if (count)
-            result = tw_fail(err, TW_ERROR_INVALID, "invalid .tw file: %s faces of its surface cross or touch other faces",
+            result = tw_fail(err, TW_ERROR_INVALID,
+                             "invalid .tw file: %s faces of its surface cross or touch other faces",
                              commas(count, buf, sizeof buf));
     }
     free(bad);
@@ -234,6 +240,9 @@ int tw_filter_surface(const tw_surface *control, int smoothing, int subdivision,
     *gave_up = 0;
     if (threads < 1) threads = 1;
     size_t nv0 = control->nv, nf0 = control->nf;
+    if (nf0 > TW_MAX_FACES || nv0 > (size_t)INT32_MAX / 3) /* also keeps every size below in range on wasm32 */
+        return tw_fail(err, TW_ERROR_LIMIT, "the surface to filter has more than %u faces or 2^31 / 3 vertices",
+                       (unsigned)TW_MAX_FACES);
     if (subdivision > 0) { /* the refusal of a subdivided surface over the cap comes first, as in the reference */
         uint64_t faces = nf0;
         for (int l = 0; l < subdivision && faces <= TW_MAX_FACES; l++) faces *= 4;

@@ -607,6 +607,9 @@ static void faces_cells(void *ctx, int64_t begin, int64_t end, int worker) {
 #define CELL_CHUNK 256
 #define PATCH_CHUNK 1024 /* vertices per chunk of `stars`' patches */
 
+/* tw_crossings_grid (`faces`): the full check, the reference's grid and pair predicate. v (nv * 3), f (nf * 3, indices
+ * trusted), only (nf), flags (nf, out). 0 done, 1 no feasible cell size (the reference's RuntimeError), -1 out of
+ * memory. */
 int tw_crossings_grid(const double *v, size_t nv_, const int32_t *f, size_t nf_, const uint8_t *only, int threads,
                       uint8_t *flags) {
     (void)nv_;
@@ -775,7 +778,8 @@ static void test_pair(const CheckFaces *s, int64_t a, int64_t b) {
         return;
     face_normal(ta, na);
     face_normal(tb, nb);
-    int64_t ia[3] = {s->f[3 * a], s->f[3 * a + 1], s->f[3 * a + 2]}, ib[3] = {s->f[3 * b], s->f[3 * b + 1], s->f[3 * b + 2]};
+    int64_t ia[3] = {s->f[3 * a], s->f[3 * a + 1], s->f[3 * a + 2]};
+    int64_t ib[3] = {s->f[3 * b], s->f[3 * b + 1], s->f[3 * b + 2]};
     if (pair_intersects(ta, tb, ia, ib, na, nb, ba, bb, sqrt(dot3(na, na)), sqrt(dot3(nb, nb)))) {
         FLAG_SET(s->flags + a);
         FLAG_SET(s->flags + b);
@@ -1065,8 +1069,8 @@ static void marked_loop(void *ctx, int64_t begin, int64_t end, int worker) {
     }
 }
 
-/* marked(vertices (V,3) float64, faces (F,3) int64, flags (F,) uint8 out, only (F,) uint8) -> 0: decided, flags
- * are exactly what faces(vertices, faces, flags, only) writes; 2: undecided (flags all 0: the caller runs `faces`).
+/* tw_crossings_marked(v, nv, f, nf, only, threads, flags) -> 0: decided, flags are exactly what
+ * tw_crossings_grid (`faces` below) writes; 2: undecided (flags all 0: the caller runs `faces`); -1 out of memory.
  *
  * For checks that mark few faces (geometry.surface_filter.restore_crossings after its first check): `faces`
  * rebuilds and sorts the whole grid for them; this does O(F) passes and the marked faces' pairs only.
@@ -1079,8 +1083,8 @@ static void marked_loop(void *ctx, int64_t begin, int64_t end, int worker) {
  * sums the entries in the same order, and counts every cell's faces (a dense array over the lattice; undecided
  * when that has more than MAX_DENSE_CELLS cells or a cell 65535 faces) to get the exact pair count: when the
  * first size is feasible, the answer is the pair set, computed here from lists of the marked faces per cell (the
- * same dense lattice) that every valid face's box scans, each pair once (in the cell of its larger lower corner; a pair of two marked
- * faces from its lower face), the lower face first as in `faces`. */
+ * same dense lattice) that every valid face's box scans, each pair once (in the cell of its larger lower corner; a
+ * pair of two marked faces from its lower face), the lower face first as in `faces`. */
 int tw_crossings_marked(const double *v, size_t nv_, const int32_t *f, size_t nf_, const uint8_t *only, int threads,
                         uint8_t *flags) {
     (void)nv_;
@@ -1191,8 +1195,8 @@ done:
 }
 
 /* ------------------------------------------------------------------------------------------------------------
- * stars(vertices (V,3) float64, faces (F,3) int64, flags (F,) uint8 out, only (F,) uint8, children int) -> 0:
- * decided, flags are exactly what faces(vertices, faces, flags, only) writes; 2: undecided (flags all 0: the
+ * tw_crossings_stars(v, nv, f, nf, only, children, threads, flags) -> 0: decided, flags are exactly what
+ * tw_crossings_grid (`faces`) writes; 2: undecided (flags all 0: the
  * caller runs `faces`).
  *
  * The first check of a filtered surface, without a grid over its faces. `children` is 1, or 4 when the faces come
@@ -1310,7 +1314,8 @@ static int patch_certified(const CheckFaces *s, const ParentRec *recs, int group
     /* the boundary, projected on a basis (e1, e2) of the plane normal to N, turns around u once, each step by a
      * positive angle with margin */
     double e1[3], e2[3], axis[3] = {0, 0, 0};
-    int small = fabs(nrm[0]) <= fabs(nrm[1]) ? (fabs(nrm[0]) <= fabs(nrm[2]) ? 0 : 2) : (fabs(nrm[1]) <= fabs(nrm[2]) ? 1 : 2);
+    int small = fabs(nrm[0]) <= fabs(nrm[1]) ? (fabs(nrm[0]) <= fabs(nrm[2]) ? 0 : 2)
+                                             : (fabs(nrm[1]) <= fabs(nrm[2]) ? 1 : 2);
     axis[small] = 1;
     cross3(nrm, axis, e1);
     double l1 = sqrt(dot3(e1, e1));
@@ -1729,6 +1734,10 @@ done:
  * intersections.MARKED_SHARE) */
 #define MARKED_SHARE 8
 
+/* tw_self_intersecting: intersections.self_intersecting_faces' compiled path (the same calls in the same order):
+ * only NULL = every face marked; few marked: tw_crossings_marked, else with children 4 tw_crossings_stars, and
+ * tw_crossings_grid when those leave it undecided. Every index is checked first. 0 done, 1 no feasible grid, -1
+ * out of memory, -2 an index out of range. */
 int tw_self_intersecting(const double *v, size_t nv, const int32_t *f, size_t nf, const uint8_t *only, int children,
                          int threads, uint8_t *flags) {
     for (size_t i = 0; i < 3 * nf; i++)
