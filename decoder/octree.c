@@ -27,8 +27,20 @@ static int popcount8(unsigned v) {
     return c;
 }
 
-/* Whether `key` is among keys[0..n) (ascending). */
-static int has_key(const uint64_t *keys, size_t n, uint64_t key) {
+/* Every third bit of v from bit 0, packed (octree._compact3): the coordinate of one axis of a Morton key. */
+static uint32_t compact3(uint64_t v) {
+    v &= 0x9249249249249249ULL;
+    v = (v | (v >> 2)) & 0x30C30C30C30C30C3ULL;
+    v = (v | (v >> 4)) & 0xF00F00F00F00F00FULL;
+    v = (v | (v >> 8)) & 0x00FF0000FF0000FFULL;
+    v = (v | (v >> 16)) & 0x0000FFFF0000FFFFULL;
+    return (uint32_t)(v & 0xFFFF);
+}
+
+/* Whether `key` is among keys[0..n) (ascending): a dense bitmap over every key of the level when it has one
+ * (levels <= DENSE_LEVEL_MAX, as octree.face_neighbours), else a binary search. */
+static int has_key(const uint64_t *keys, size_t n, const uint8_t *bitmap, uint64_t key) {
+    if (bitmap) return (bitmap[key >> 3] >> (key & 7)) & 1;
     size_t lo = 0, hi = n;
     while (lo < hi) {
         size_t mid = lo + (hi - lo) / 2;
@@ -40,12 +52,21 @@ static int has_key(const uint64_t *keys, size_t n, uint64_t key) {
     return lo < n && keys[lo] == key;
 }
 
+#define DENSE_LEVEL_MAX 7 /* a bitmap of 8^level bits: 256 KiB at level 7 */
+
 /*
  * face_neighbours -- octree.face_neighbours: for each node of `level` (keys ascending, 3 level bits), bit s of
  * out[i] says whether its face neighbour s (-x, +x, -y, +y, -z, +z) is a node too (never outside the grid).
- * A +-1 step along one axis of a Morton code borrows or carries through that axis' bits only.
+ * A +-1 step along one axis of a Morton code borrows or carries through that axis' bits only. Returns TW_OK or
+ * TW_ERROR_MEMORY (the bitmap).
  */
-static void face_neighbours(const uint64_t *keys, size_t n, int level, uint8_t *out) {
+static int face_neighbours(const uint64_t *keys, size_t n, int level, uint8_t *out) {
+    uint8_t *bitmap = NULL;
+    if (level <= DENSE_LEVEL_MAX) {
+        bitmap = (uint8_t *)calloc(((size_t)1 << (3 * level)) / 8 + 1, 1);
+        if (!bitmap) return TW_ERROR_MEMORY;
+        for (size_t i = 0; i < n; i++) bitmap[keys[i] >> 3] |= (uint8_t)(1u << (keys[i] & 7));
+    }
     for (size_t i = 0; i < n; i++) out[i] = 0;
     for (int axis = 0; axis < 3; axis++) {
         const int shift = 2 - axis; /* x, y, z sit at key bits 3j + 2, 3j + 1, 3j */
@@ -53,11 +74,14 @@ static void face_neighbours(const uint64_t *keys, size_t n, int level, uint8_t *
         for (int j = 0; j < level; j++) bits |= (uint64_t)1 << (3 * j + shift);
         for (size_t i = 0; i < n; i++) {
             const uint64_t key = keys[i], coord = key & bits, rest = key & ~bits;
-            if (coord != 0 && has_key(keys, n, ((coord - 1) & bits) | rest)) out[i] |= (uint8_t)(1u << (2 * axis));
-            if (coord != bits && has_key(keys, n, (((key | ~bits) + 1) & bits) | rest))
+            if (coord != 0 && has_key(keys, n, bitmap, ((coord - 1) & bits) | rest))
+                out[i] |= (uint8_t)(1u << (2 * axis));
+            if (coord != bits && has_key(keys, n, bitmap, (((key | ~bits) + 1) & bits) | rest))
                 out[i] |= (uint8_t)(1u << (2 * axis + 1));
         }
     }
+    free(bitmap);
+    return TW_OK;
 }
 
 /* One bit-coded level: occ[i] of each node from 8 child passes (octree._decode_bitwise). */
@@ -65,7 +89,8 @@ static int decode_bitwise(tw_range *rc, const unsigned char *table, const uint64
                           uint8_t *occ, uint8_t *neighbours, tw_error *err) {
     for (int c = 0; c < CONTEXTS; c++) /* binary_weight_rows rejects a zero byte whether or not it is used */
         if (table[c] == 0) return tw_fail(err, TW_ERROR_INVALID, "invalid .tw payload: bad binary model");
-    face_neighbours(keys, n, level, neighbours);
+    if (face_neighbours(keys, n, level, neighbours))
+        return tw_fail(err, TW_ERROR_MEMORY, "out of memory for the octree's neighbour table");
     for (size_t i = 0; i < n; i++) occ[i] = 0;
     for (int child = 0; child < 8; child++) {
         const int bx = (child >> 2) & 1, by = (child >> 1) & 1, bz = child & 1;
@@ -179,12 +204,8 @@ int tw_decode_octree(const unsigned char *section, size_t size, int bits, uint32
                          count, n);
         goto done;
     }
-    for (size_t i = 0; i < count; i++) { /* octree._cells_from_keys: x at key bits 3j + 2, y 3j + 1, z 3j */
-        uint32_t xyz[3] = {0, 0, 0};
-        for (int j = 0; j < bits; j++)
-            for (int axis = 0; axis < 3; axis++) xyz[axis] |= (uint32_t)((keys[i] >> (3 * j + 2 - axis)) & 1) << j;
-        for (int axis = 0; axis < 3; axis++) cells[3 * i + axis] = (int32_t)xyz[axis];
-    }
+    for (size_t i = 0; i < count; i++) /* octree._cells_from_keys: x at key bits 3j + 2, y 3j + 1, z 3j */
+        for (int axis = 0; axis < 3; axis++) cells[3 * i + (size_t)axis] = (int32_t)compact3(keys[i] >> (2 - axis));
 done:
     free(keys);
     free(next);
