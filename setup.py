@@ -12,6 +12,9 @@
 * `tetweave_codec.geometry._delaunay_native` (tetweave_codec/geometry/_delaunay_native.c): the exact Delaunay
   tetrahedralization of integer points under a fixed symbolic perturbation (the "exact" backend of
   geometry/delaunay.py, specified in its docstring). REQUIRED (`optional=False`): it has no Python fallback.
+* `tetweave_codec._decoder_native` (tetweave_codec/_decoder_native.c, the binding of the whole decoder core in
+  decoder/: file bytes in, mesh out; decoder/tetweave_decoder.h): what `decoder.decode` runs on the files of this
+  version. REQUIRED: tetweave_codec/decoder.py keeps the Python pipeline as the reference and for older files.
 * `tetweave_codec._text_native` (tetweave_codec/_text_native.c): the rows of the OBJ and OFF writers; meshio.py is
   the reference.
 
@@ -21,6 +24,7 @@ the reference's: no fused multiply-add contraction, no -ffast-math.
 """
 
 import sys
+from pathlib import Path
 
 from setuptools import Extension, setup
 
@@ -28,6 +32,9 @@ FLAGS = [] if sys.platform == "win32" else ["-O2", "-ffp-contract=off", "-fno-fa
 # _intersect_native.c runs its crossing check on pthreads when asked for threads (without pthreads, on Windows, it
 # runs them on the calling thread: same flags)
 THREAD_FLAGS = [] if sys.platform == "win32" else ["-pthread"]
+
+# The decoder core (decoder/, C99, no Python.h): every source; tetweave_codec/_decoder_native.c is its binding.
+CORE_SOURCES = sorted(str(p.as_posix()) for p in Path("decoder").glob("*.c"))
 
 setup(
     ext_modules=[
@@ -77,6 +84,15 @@ setup(
             include_dirs=["decoder"],
             depends=["decoder/internal.h", "decoder/tetweave_decoder.h", "decoder/radix.h"],
             extra_compile_args=FLAGS,
+            optional=False,
+        ),
+        Extension(
+            "tetweave_codec._decoder_native",
+            ["tetweave_codec/_decoder_native.c", *CORE_SOURCES],
+            include_dirs=["decoder"],
+            depends=["decoder/internal.h", "decoder/tetweave_decoder.h", "decoder/radix.h"],
+            extra_compile_args=FLAGS + THREAD_FLAGS,
+            extra_link_args=THREAD_FLAGS,
             optional=False,
         ),
         Extension(

@@ -159,11 +159,14 @@ def _decode_one(file: Path, output: Path | None, delaunay: str, level: str = "fu
     save_mesh(output, result.vertices, result.faces)
     sec = result.seconds
     click.echo(f"wrote {output}: {len(result.vertices):,} vertices, {len(result.faces):,} faces")
-    click.echo(
-        f"decoded {result.container.num_points:,} points in {elapsed:.2f}s "
-        f"(Delaunay {sec['delaunay']:.2f}s with {result.backend}, {result.num_tets:,} tets; "
-        f"marching tets {sec['marching_tets']:.2f}s{_smoothing_note(result)})"
-    )
+    if "delaunay" in sec:  # the Python pipeline (files of earlier encoders): its stages
+        stages = (
+            f"Delaunay {sec['delaunay']:.2f}s with {result.backend}, {result.num_tets:,} tets; "
+            f"marching tets {sec['marching_tets']:.2f}s"
+        )
+    else:  # the decoder core, one call
+        stages = f"the C decoder core, exact Delaunay, {result.num_tets:,} tets"
+    click.echo(f"decoded {result.header.num_points:,} points in {elapsed:.2f}s ({stages}{_smoothing_note(result)})")
 
 
 def _smoothing_note(result) -> str:
@@ -173,17 +176,18 @@ def _smoothing_note(result) -> str:
     skipped = _skipped_note(result)
     if not steps and not levels:
         return skipped
-    creases = " keeping creases" if result.container.creases else ""
+    creases = " keeping creases" if result.header.creases else ""
     parts = [f"{steps} smoothing step{'s' if steps > 1 else ''}{creases}"] if steps else []
     parts += [f"{levels} subdivision level{'s' if levels > 1 else ''}"] if levels else []
     back = f", {result.restored:,} vertices kept unsmoothed" if result.restored else ""
-    return f"; {' + '.join(parts)} {result.seconds.get('smoothing', 0.0):.2f}s{back}{skipped}"
+    took = f" {result.seconds['smoothing']:.2f}s" if "smoothing" in result.seconds else ""
+    return f"; {' + '.join(parts)}{took}{back}{skipped}"
 
 
 def _skipped_note(result) -> str:
     """'; level control: ... not applied' when --level left out part of the file's filter."""
-    steps = result.container.smoothing - result.smoothing
-    levels = result.container.subdivision - result.subdivision
+    steps = result.header.smoothing - result.smoothing
+    levels = result.header.subdivision - result.subdivision
     parts = [f"{steps} smoothing step{'s' if steps > 1 else ''}"] if steps else []
     parts += [f"{levels} subdivision level{'s' if levels > 1 else ''}"] if levels else []
     return f"; level {result.level}: the file's {' + '.join(parts)} not applied" if parts else ""

@@ -342,4 +342,25 @@ int tw_manifold_defect(const int32_t *faces, size_t nf, size_t nv, int closed, i
 int tw_marching_tets(const double *points, const double *s, const double *c, int sh_degree, size_t n,
                      const tw_tets *tz, tw_surface *out, tw_error *err);
 
+/* ---- the whole decode (decode.c) ------------------------------------------------------------------------- */
+
+/* Everything a decode made, for the Python binding (decoder.decode_detailed): the parsed file, the control surface
+ * (its faces are what a holes section's ranks name), the closed surface at the level in the output frame, and the
+ * mesh with the holes opened (empty when the file has no holes section: the closed surface is the mesh). */
+typedef struct tw_decode_detail {
+    tw_file file;
+    tw_surface control;
+    tw_surface closed;
+    tw_surface mesh;
+    tw_decode_stats stats;
+} tw_decode_detail;
+
+/* tw_decode's stages, keeping what they made. options: not NULL, checked by the caller. On failure everything is
+ * freed; on success release with tw_decode_detail_free. */
+int tw_decode_detailed(const unsigned char *data, size_t size, const tw_decode_options *options,
+                       tw_decode_detail *detail, tw_error *err);
+void tw_decode_detail_free(tw_decode_detail *detail);
+/* The decoded mesh of a detail: the opened mesh with a holes section, else the closed surface. */
+const tw_surface *tw_decoded_mesh(const tw_decode_detail *detail);
+
 #endif /* TETWEAVE_INTERNAL_H */

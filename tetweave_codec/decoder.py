@@ -19,10 +19,18 @@ back to the control surface), so every level is closed, 2-manifold and free of s
 section (whose ranks name faces of the control surface) opens the same holes in each. Faces: control and smoothed
 have the control surface's F0 less the K listed faces, full 4^L times that (L Loop levels; F0 - K again on the
 rare surface whose filter the decoder drops).
+
+The decoder core (decoder/, C; `tetweave_codec._decoder_native`) runs `decode`, `decode_detailed` and
+`level_faces` on every file of this version (container version 2, the exact Delaunay) in one call: bytes in,
+arrays out, the same mesh as the Python pipeline below bit for bit (tests/test_core_decode.py), which stays the
+reference (environment TETWEAVE_CORE=0) and decodes the files of earlier encoders (version 1, TetGen or Qhull),
+which the core refuses. The core's path imports neither the entropy coder nor the container modules: a result's
+`container` parses the file in Python only when a field beyond the header is asked for.
 """
 
 from __future__ import annotations
 
+import os
 import time
 import warnings
 from dataclasses import dataclass, field
@@ -38,6 +46,12 @@ from tetweave_codec.geometry.marching_tets import marching_tets_numpy
 from tetweave_codec.geometry.sh import check_degree, num_coeffs
 from tetweave_codec.geometry.surface_filter import filter_surface
 
+try:
+    from tetweave_codec import _decoder_native
+except ImportError:  # a source tree whose extensions are not built: the Python pipeline
+    _decoder_native = None
+
+CORE = _decoder_native is not None and os.environ.get("TETWEAVE_CORE", "1") != "0"
 LEVELS = ("control", "smoothed", "full")  # lightest first; "full" is the file's own filter
 DEFAULT_LEVEL = "full"
 
@@ -61,16 +75,38 @@ class DecodeWarning(UserWarning):
     """Decoding works but may not reproduce the encoder's mesh exactly (its Delaunay backend is missing)."""
 
 
+class FileHeader(NamedTuple):
+    """A decoded file's header fields: what a caller reports without parsing the sections again."""
+
+    num_points: int
+    sh_degree: int
+    flags: int
+    creases: bool
+    smoothing: int  # the file's Taubin steps (a decode at a lower level applies fewer: DecodeResult.smoothing)
+    subdivision: int  # the file's Loop levels
+    scale: float
+    offset: np.ndarray
+
+
+def _header_of(tw) -> FileHeader:
+    return FileHeader(
+        tw.num_points, tw.sh_degree, int(tw.flags), bool(getattr(tw, "creases", False)), tw.smoothing,
+        tw.subdivision, float(tw.scale), np.asarray(tw.offset, dtype=np.float64),
+    )  # fmt: skip
+
+
 @dataclass
 class DecodeResult:
     """Output of `decode_detailed`.
 
     vertices: (V, 3) float64 in the input mesh's frame. faces: (F, 3) int64, outward.
-    container: the parsed file (formats.tw.TetWeaveFile for version 1, formats.tw2.TetWeaveFileV2 for version 2;
-        both expose `points`, `s`, `c`, which the decoder converts to float64 -- v2's are its dequantized values).
+    parsed: the parsed file (formats.tw.TetWeaveFile for version 1, formats.tw2.TetWeaveFileV2 for version 2;
+        both expose `points`, `s`, `c`, which the decoder converts to float64 -- v2's are its dequantized values),
+        or None after a decode by the core: `container` parses `data` then, on first use.
     backend: Delaunay backend actually used.
     seconds: wall time per stage: "unpack", "delaunay", "marching_tets", "smoothing" (smoothing, subdivision and
-        their self-intersection check; 0 for files without either).
+        their self-intersection check; 0 for files without either), "holes"; a decode by the core has one stage,
+        "decode" (the whole call).
     num_tets: size of the tetrahedralization.
     restored: vertices the self-intersection check put back to their unsmoothed place (all of the unsubdivided
         surface's when the filter was dropped).
@@ -83,7 +119,7 @@ class DecodeResult:
 
     vertices: np.ndarray
     faces: np.ndarray
-    container: object
+    parsed: object
     backend: str
     seconds: dict[str, float] = field(default_factory=dict)
     num_tets: int = 0
@@ -94,6 +130,64 @@ class DecodeResult:
     level: str = DEFAULT_LEVEL
     smoothing: int = 0
     subdivision: int = 0
+    header: FileHeader | None = None
+    data: bytes | None = field(default=None, repr=False)
+
+    @property
+    def container(self):
+        """The parsed file (see `parsed`); a decode by the core parses it here, once, when it is asked for."""
+        if self.parsed is None:
+            from tetweave_codec.formats.tw import unpack
+
+            self.parsed = unpack(self.data)
+        return self.parsed
+
+
+# the core's status codes (decoder/tetweave_decoder.h tw_status) -> what the Python pipeline raises
+_CORE_UNSUPPORTED = 2
+
+
+def _core_error(status: int, message: str) -> Exception:
+    from tetweave_codec.errors import TopologyError
+
+    if status == 4:
+        return MemoryError(message)
+    if status == 5:
+        return ValueError(message)
+    if status == 6:
+        return TopologyError(message)
+    return ContainerError(message)  # 1 invalid, 3 more faces than the decoder's cap
+
+
+def _array(raw: bytes, dtype, columns: int) -> np.ndarray:
+    return np.frombuffer(raw, dtype=dtype).reshape(-1, columns)
+
+
+def _core_decode(data: bytes, level: str, threads: int, clock) -> DecodeResult | None:
+    """decode_detailed by the core, or None for a file the core does not decode (an earlier encoder's)."""
+    t0 = clock()
+    status, message, r = _decoder_native.decode(data, LEVELS.index(level), threads)
+    seconds = {"decode": clock() - t0}
+    if status == _CORE_UNSUPPORTED:
+        return None
+    if status:
+        raise _core_error(status, message)
+    vertices = _array(r["vertices"], np.float64, 3)
+    faces = _array(r["faces"], np.int32, 3).astype(np.int64)
+    if "closed_faces" in r:
+        closed_v = _array(r["closed_vertices"], np.float64, 3)
+        closed_f = _array(r["closed_faces"], np.int32, 3).astype(np.int64)
+    else:
+        closed_v, closed_f = vertices, faces
+    extracted = _array(r["extracted_faces"], np.int32, 3).astype(np.int64)
+    header = FileHeader(
+        r["points"], r["sh_degree"], r["flags"], bool(r["creases"]), r["file_smoothing"], r["file_subdivision"],
+        r["scale"], np.asarray(r["offset"], dtype=np.float64),
+    )  # fmt: skip
+    return DecodeResult(
+        vertices, faces, None, "exact", seconds, r["tets"], r["restored"], extracted, closed_v, closed_f, level,
+        r["smoothing"], r["subdivision"], header, data,
+    )  # fmt: skip
 
 
 def mesh_from_points(
@@ -206,7 +300,7 @@ def level_faces(data: bytes, backend: str | None = None) -> dict[str, int | None
 
     result = decode_detailed(data, backend, level="control")
     control = len(result.faces)
-    levels = result.container.subdivision
+    levels = result.header.subdivision
     full: int | None = control * 4**levels
     if levels and len(result.extracted_faces) * 4**levels > MAX_SUBDIVIDED_FACES:
         full = None
@@ -217,10 +311,14 @@ def decode_detailed(
     data: bytes, backend: str | None = None, clock=time.perf_counter, level: str = DEFAULT_LEVEL, threads: int = 1
 ) -> DecodeResult:
     """`decode` plus the parsed container, the backend used and per-stage timings measured with `clock`."""
-    from tetweave_codec.formats.tw import unpack
-
     check_level(level)
     threads = resolve_threads(threads)  # ValueError before any work
+    if CORE and backend in (None, "exact"):
+        result = _core_decode(bytes(data), level, threads, clock)
+        if result is not None:
+            return result
+    from tetweave_codec.formats.tw import unpack
+
     seconds: dict[str, float] = {}
     t0 = clock()
     tw = unpack(data)
@@ -258,5 +356,5 @@ def decode_detailed(
         seconds["holes"] = clock() - t0
     return DecodeResult(
         vertices, faces, tw, ex.tz.backend, seconds, len(ex.tz.tets), ex.restored, ex.extracted_faces, closed_v,
-        ex.faces, level, smoothing, subdivision,
+        ex.faces, level, smoothing, subdivision, _header_of(tw), data,
     )  # fmt: skip

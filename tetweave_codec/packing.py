@@ -122,7 +122,7 @@ def _opened(full, data: bytes):
     vertices, faces = open_holes(
         full.closed_vertices, full.closed_faces, full.extracted_faces, container.holes, children
     )
-    return replace(full, vertices=vertices, faces=faces, container=container)
+    return replace(full, vertices=vertices, faces=faces, parsed=container)
 
 
 def pack_result(result: FitResult, scale: float, offset: np.ndarray) -> bytes:

@@ -146,7 +146,7 @@ def decode_file(task: Task) -> dict:
         "status": "ok",
         "data": out,
         "bytes": len(out),
-        "points": result.container.num_points,
+        "points": result.header.num_points,
         "vertices": len(result.vertices),
         "faces": len(result.faces),
         "seconds": time.perf_counter() - t0,
