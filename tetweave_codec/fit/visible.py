@@ -370,7 +370,7 @@ def visible_surface(vertices: np.ndarray, faces: np.ndarray) -> VisibleSurface:
     return VisibleSurface(out_v, out_f, hidden_share, int((flip & any_seen).sum()), len(out_f))
 
 
-def outside_surface(vertices: np.ndarray, faces: np.ndarray, parts=None) -> VisibleSurface:
+def outside_surface(vertices: np.ndarray, faces: np.ndarray, parts=None, union=None) -> VisibleSurface:
     """The outside surface of the normalized input (vertices (V,3), faces (F,3)): the exact union of its closed
     parts (fit.parts, manifold3d), and the pieces of its other faces (open parts, sheets, soups, inconsistently
     oriented parts) that renders of those faces alone see (they may hide each other) and that lie outside the
@@ -379,7 +379,8 @@ def outside_surface(vertices: np.ndarray, faces: np.ndarray, parts=None) -> Visi
     union keeps its own crevices. The union's faces are exact and kept whole, except those that some view of the
     union alone sees but none sees with the other faces in front (hidden by an open part, e.g. inside an open
     housing: a viewer does not see them).
-    Without closed parts this is `visible_surface`. parts: fit.parts.Parts of the input, when already split.
+    Without closed parts this is `visible_surface`. parts: fit.parts.Parts of the input, when already split;
+    union: fit.parts.Union of those parts, when already computed.
     hidden_share: the share of the input's area not on the output (hidden or inside the union)."""
     from tetweave_codec.fit.parts import closed_union, split_parts
 
@@ -389,7 +390,7 @@ def outside_surface(vertices: np.ndarray, faces: np.ndarray, parts=None) -> Visi
     if not len(parts.closed):
         return visible_surface(v, f)
     total = float(face_areas(v, f)[_usable(v, f)].sum())
-    union = closed_union(v, f, parts)
+    union = closed_union(v, f, parts) if union is None else union
     rest = np.flatnonzero(parts.rest & _usable(v, f))
     n_closed = len(parts.closed)
     if not len(rest):
@@ -506,7 +507,7 @@ def choose_surface(vertices: np.ndarray, faces: np.ndarray, surface: str) -> Sur
             return SurfaceChoice(
                 "all", f"{n_closed} closed parts, disjoint or touching ({_pct(dropped)} inside others)"
             )
-        out = outside_surface(v, f, parts)
+        out = outside_surface(v, f, parts, union)
         return SurfaceChoice("visible", _describe(out), out)
     if n_closed:
         out = outside_surface(v, f, parts)
