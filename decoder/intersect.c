@@ -210,18 +210,105 @@ static double kth_smallest(double *a, int64_t n, int64_t k) {
     return a[k];
 }
 
+/* The k-th smallest (0-based) of a[0..n) into *out, when every a[i] is +0, positive or +inf: 1. Else (a negative
+ * value, -0 or a NaN) 0 and nothing written: the caller selects by comparisons (kth_smallest). For such values the
+ * bit patterns, read as unsigned integers, are in the order of the values and equal values have equal bits, so a
+ * radix selection on the bits gives the value kth_smallest gives. buf: scratch of n doubles (a is not changed).
+ * Digits of RADIX_BITS bits from the highest bit where the values differ: each level counts the candidates' digits
+ * and keeps those of the digit that holds rank k (2 passes over a, then over far fewer): ~1 ms for 320K extents
+ * where Hoare's selection took ~8. */
+static int radix_kth(const double *a, int64_t n, int64_t k, double *buf, double *out) {
+    const uint64_t inf = 0x7ff0000000000000ull, mask = (1u << RADIX_BITS) - 1;
+    uint64_t low = UINT64_MAX, high = 0;
+    for (int64_t i = 0; i < n; i++) {
+        uint64_t b;
+        memcpy(&b, a + i, sizeof b);
+        if (b > inf) return 0; /* sign bit (negative, -0) or NaN */
+        if (b < low) low = b;
+        if (b > high) high = b;
+    }
+    if (n <= 0 || k < 0 || k >= n) return 0;
+    if (low == high) {
+        *out = a[0];
+        return 1;
+    }
+    int shift = bit_length(low ^ high) - RADIX_BITS; /* every value has the bits above the top differing bit */
+    if (shift < 0) shift = 0;
+    const double *src = a;
+    int64_t m = n;
+    for (;;) {
+        int64_t count[1 << RADIX_BITS];
+        memset(count, 0, sizeof count);
+        for (int64_t i = 0; i < m; i++) {
+            uint64_t b;
+            memcpy(&b, src + i, sizeof b);
+            count[(b >> shift) & mask]++;
+        }
+        uint64_t d = 0;
+        while (k >= count[d]) k -= count[d++]; /* the digit of rank k; k becomes its rank among them */
+        int64_t w = 0;
+        for (int64_t i = 0; i < m; i++) { /* in place from the second level on: w <= i */
+            uint64_t b;
+            memcpy(&b, src + i, sizeof b);
+            if (((b >> shift) & mask) == d) buf[w++] = src[i];
+        }
+        src = buf;
+        m = w;
+        if (shift == 0) { /* the candidates now agree on every bit */
+            *out = buf[0];
+            return 1;
+        }
+        if (m <= 64) {
+            *out = kth_smallest(buf, m, k);
+            return 1;
+        }
+        shift = shift > RADIX_BITS ? shift - RADIX_BITS : 0;
+    }
+}
+
+/* The k-th smallest of a[0..n) (0 <= k < n), a clobbered: radix_kth through a scratch copy where its values allow
+ * and the scratch can be had, else kth_smallest in place (the same value either way). */
+static double kth_value(double *a, int64_t n, int64_t k) {
+    double *buf = (double *)malloc(sizeof(double) * (size_t)(n > 0 ? n : 1)), out;
+    int done = buf && radix_kth(a, n, k, buf, &out);
+    free(buf);
+    return done ? out : kth_smallest(a, n, k);
+}
+
 /* The reference's first cell size: 2 * median(ext[0..n)) (numpy's median: the mean of the two middle values for
- * even n), or the largest extent where that is not > 0, or 1. Clobbers `sorted` (n items). */
+ * even n), or the largest extent where that is not > 0, or 1. n >= 1. Clobbers `sorted` (n items). */
 static double first_cell(const double *ext, double *sorted, int64_t n) {
+    double upper, median, cell;
+    if (radix_kth(ext, n, n / 2, sorted, &upper)) { /* no NaN, no sign bit: comparisons are a total order */
+        median = upper;
+        if (n % 2 == 0) {
+            /* the (n/2 - 1)-th smallest: upper when at most n/2 - 1 values lie below it, else the largest of those */
+            int64_t below = 0;
+            double lower = upper;
+            for (int64_t i = 0; i < n; i++)
+                if (ext[i] < upper && (below++ == 0 || ext[i] > lower)) lower = ext[i];
+            if (below <= n / 2 - 1) lower = upper;
+            median = (lower + upper) / 2.0;
+        }
+        cell = 2.0 * median;
+        if (!(cell > 0)) {
+            cell = ext[0];
+            for (int64_t i = 1; i < n; i++)
+                if (ext[i] > cell) cell = ext[i];
+            if (cell == 0) cell = 1.0;
+        }
+        return cell;
+    }
     memcpy(sorted, ext, sizeof(double) * (size_t)n);
-    double upper = kth_smallest(sorted, n, n / 2), median = upper;
+    upper = kth_smallest(sorted, n, n / 2);
+    median = upper;
     if (n % 2 == 0) { /* the largest value before position n / 2 is the (n / 2 - 1)-th smallest */
         double lower = sorted[0];
         for (int64_t i = 1; i < n / 2; i++)
             if (sorted[i] > lower) lower = sorted[i];
         median = (lower + upper) / 2.0;
     }
-    double cell = 2.0 * median;
+    cell = 2.0 * median;
     if (!(cell > 0)) {
         cell = sorted[0];
         for (int64_t i = 1; i < n; i++)
@@ -1634,7 +1721,7 @@ int tw_crossings_stars(const double *v, size_t nv_, const int32_t *f, size_t nf_
         status = 0;
         goto done;
     }
-    double cell = 2.0 * kth_smallest(gext, ng, ng / 2);
+    double cell = 2.0 * kth_value(gext, ng, ng / 2);
     if (!(cell > 0)) cell = 1.0;
     int64_t dims[3], ncells = 0, entries = 0;
     for (int round = 0;; round++) {
