@@ -30,9 +30,10 @@ from tetweave_codec.benchmarks.common import script_meshes, script_parser
 from tetweave_codec.cli.common import parse_count
 from tetweave_codec.decoder import decode, decode_detailed
 from tetweave_codec.encoder import pack_result
-from tetweave_codec.fit.config import QUALITY, FitConfig, Quantization, default_quantization
+from tetweave_codec.fit.config import QUALITY, FitConfig
 from tetweave_codec.fit.finish import finish
 from tetweave_codec.fit.loop import FitResult, deterministic_torch, fit_main
+from tetweave_codec.formats.quantize import Quantization, default_quantization
 from tetweave_codec.meshio import load_mesh, normalize
 from tetweave_codec.metrics import chamfer_distance
 

@@ -1,5 +1,5 @@
-"""The encoder summary's classical context (bench/anchor.py) on the committed bench files: how close its quick
-search for fast-simplification + Draco comes to a dense sweep and to `tetweave bench`, and what it costs.
+"""The encoder summary's classical context (tetweave_codec/classical.py) on the committed bench files: how close its
+quick search for fast-simplification + Draco comes to a dense sweep and to `tetweave bench`, and what it costs.
 
 For each committed file (benchmarks/results/files/MESH/*.tw) the file is decoded and its Chamfer distance to the
 input measured as the summary measures it; then `classical_context` runs (timed), and a dense sweep of the same
@@ -20,9 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
-from tetweave_codec.bench.anchor import classical_context
-from tetweave_codec.bench.baselines import decimate, draco_decode, draco_encode
 from tetweave_codec.benchmarks.common import script_meshes, script_parser
+from tetweave_codec.classical import classical_context, decimate, draco_decode, draco_encode
 from tetweave_codec.decoder import decode
 from tetweave_codec.fit.prepared import prepare_input
 from tetweave_codec.meshio import load_mesh

@@ -75,8 +75,8 @@ class MlabFront:
 
     def measure(self, keep: float, bits: int) -> float:
         """Chamfer distance of (keep, bits) to the reference (the bytes kept in `points`)."""
-        from tetweave_codec.bench.baselines import DRACO_COMPRESSION_LEVEL, draco_decode, draco_encode
-        from tetweave_codec.bench.batch import reference_chamfer
+        from tetweave_codec.bench.rows import reference_chamfer
+        from tetweave_codec.classical import DRACO_COMPRESSION_LEVEL, draco_decode, draco_encode
 
         if (keep, bits) not in self.points:
             v, f, _, _ = self.cache.get(self.vertices, self.faces, keep)
@@ -123,7 +123,7 @@ class MlabFront:
 def main() -> None:
     from importlib.metadata import version
 
-    from tetweave_codec.bench.batch import reference_chamfer
+    from tetweave_codec.bench.rows import reference_chamfer
     from tetweave_codec.benchmarks.common import script_meshes, script_parser
     from tetweave_codec.benchmarks.visible_surface import build
     from tetweave_codec.encoder import encode

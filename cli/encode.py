@@ -379,12 +379,12 @@ def _self_check_lines(result):
 
 def _context_line(result, input_faces: int) -> str:
     """The file in context: the decoded faces against the input's, then plain Draco and fast-simplification + Draco
-    of the input at the same Chamfer distance (measured with the summary's own metric, `bench.anchor`), saying
+    of the input at the same Chamfer distance (measured with the summary's own metric, `classical`), saying
     plainly when either is smaller."""
     st = result.stats
     faces = f"decoded faces {st['faces']:,} = {st['faces'] / max(input_faces, 1):.2f}x the input's {input_faces:,}"
     try:
-        from tetweave_codec.bench.anchor import encode_context
+        from tetweave_codec.classical import encode_context
     except ImportError:  # DracoPy and fast-simplification are dependencies; a broken install only loses the lines
         return faces
     context = encode_context(result)

@@ -16,12 +16,18 @@ Quantizers (the exact decoder-side formulas are specified in formats/README.md, 
   ``k * step_j``, with one step per SH band ``l`` (coefficient ``j`` has band ``floor(sqrt(j))``). Symbols are
   clamped to ``[-C_SYMBOL_LIMIT, C_SYMBOL_LIMIT]``.
 
+The encoder's side: `Quantization` (b, the s step, the c band steps and the fractional grid's scale of one encode)
+and `default_quantization` (container v2's defaults for a fit of N points, a plain function of the options).
+
 Canonical order: the order in which the octree decoder yields the points, i.e. ascending Morton code with the
 child index ``(bx << 2) | (by << 1) | bz`` at every level (x most significant). Every per-point attribute of a
 version-2 file is stored in this order.
 """
 
 from __future__ import annotations
+
+import math
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -34,7 +40,7 @@ S_SYMBOL_LIMIT = 2**20  # s symbols lie in [-2**20, 2**20 - 1]; magnitude (k or 
 C_SYMBOL_LIMIT = 2**15  # c symbols lie in [-2**15, 2**15]
 MIN_STEP = 2.0**-126  # steps are normal float32 numbers > 0
 # The largest steps a version-2 file may store (formats/README.md, "Validation"); a real encode writes s steps
-# below 0.03 and c steps below 3 (config.default_quantization at 64 points, x 2.8 for rate control's coarser
+# below 0.03 and c steps below 3 (`default_quantization` at 64 points, x 2.8 for rate control's coarser
 # steps). A c step of 4 keeps coefficients of symbol +-1 from saturating tanh at SH degree 1 (4 x (Y_0 + |Y_1|) <=
 # 4.5, 1 + tanh >= 2.5e-4; a step of 16 already put vertices within 1e-15 of the points); a c step
 # near float32's largest makes every nonzero coefficient saturate it, which puts decoded vertices on the points.
@@ -274,3 +280,55 @@ def _check_step(step, name: str) -> float:
         return stored_step(step)
     except ValueError:
         raise ValueError(f"{name} must be finite and >= {MIN_STEP:g} (as float32), got {step}") from None
+
+
+@dataclass(frozen=True)
+class Quantization:
+    """How the container v2 quantizes what the fit found (the functions above apply it).
+
+    position_bits: b, 2^b grid cells per axis over the fixed cube (GRID_BOUND).
+    s_step: step of the sign-preserving mid-rise quantizer of s (normalized-frame units).
+    c_band_steps: step of the SH coefficients of band l = 0, 1, 2, 3.
+    grid_scale: k in [1/2, 1]: the points are stored as k x their normalized positions, on the 2^b grid (the
+    file's transform divides k out), an effective resolution of b + log2 k bits between two integer grids
+    (`fractional_grid`).
+    """
+
+    position_bits: int = 9
+    s_step: float = 3e-4
+    c_band_steps: tuple[float, float, float, float] = (0.2, 0.2, 0.2, 0.2)
+    grid_scale: float = 1.0
+
+
+def default_quantization(points: int) -> Quantization:
+    """Container v2's defaults for a fit of `points` grid points: a plain function of the options.
+
+    Chosen with benchmarks/bitstream.py --sweep (quantization-aware finish after the settle phase; bits per kept
+    point with headers; Chamfer relative to the same fit stored as v1):
+
+    =========  =====================  =====================  =====================
+    4K points  fandisk                spot                   stanford-bunny
+    =========  =====================  =====================  =====================
+    b 8        20.7 bits, 1.91x       20.9 bits, 1.10x       22.4 bits, 1.08x
+    b 9        23.6 bits, 1.61x       24.0 bits, 1.04x       25.4 bits, 1.05x
+    b 10       26.7 bits, 1.54x       27.0 bits, 1.05x       28.5 bits, 1.02x
+    b 9 s 4e-4 24.4 bits, 1.46x       24.7 bits, 1.04x       26.2 bits, 1.05x
+    b 9 c 0.3  22.4 bits, 1.67x       22.6 bits, 1.09x       23.9 bits, 1.06x
+    =========  =====================  =====================  =====================
+
+    (s step 7e-4 and c step 0.2 unless given.) At 16K: fandisk b 9 / 10 / 11 (s 3e-4): 20.3 / 23.3 / 26.3 bits,
+    1.32x / 1.17x / 1.13x; b 10 with s 2e-4: 24.0 bits, 1.08x; spot b 9 / 10 / 11: 1.06x / 1.03x / 1.02x, s 2e-4
+    1.01x. Each grid bit costs 3 bits per point; s steps matter on CAD shapes (fandisk), whose fits are the most
+    accurate; c steps of 0.3 instead of 0.2 save 1.4 bits per point at 4K for 1-5 % of error.
+
+    Those tables compare errors at equal points. At equal *bytes* a grid one bit coarser than the tables suggest
+    wins: rate-controlled files (`encode(size=..)`, s prediction on), bytes x Chamfer (lower is better), the
+    grid from floor(9.5 + ...) against floor(8.5 + ...) with the bytes-per-point model lowered by 12 % so that
+    the saved position bits buy points: spot 10 KB 5.38 -> 4.89, spot 40 KB 5.90 -> 5.43, fandisk 20 KB 3.69 ->
+    3.47, stanford-bunny 20 KB 15.99 -> 15.83, fandisk 5 KB 3.99 -> 4.05 (rate control kept b 8 there). Two bits
+    coarser was mixed (spot 10 KB 4.74, fandisk 20 KB 3.88, bunny 20 KB 14.67).
+    """
+    ratio = max(points, 1) / 4096.0
+    bits = int(min(16, max(6, math.floor(8.5 + 0.5 * math.log2(ratio)))))
+    c_step = 0.3 * ratio**-0.3
+    return Quantization(position_bits=bits, s_step=5e-4 * ratio**-0.66, c_band_steps=(c_step,) * 4)

@@ -1,4 +1,4 @@
-"""Plain Draco and fast-simplification + Draco at a matched Chamfer distance (tetweave_codec/bench/anchor.py): the
+"""Plain Draco and fast-simplification + Draco at a matched Chamfer distance (tetweave_codec/classical.py): the
 encoder's context lines."""
 
 import numpy as np
@@ -7,18 +7,20 @@ import trimesh
 
 pytest.importorskip("DracoPy")
 
-from tetweave_codec.bench.anchor import (  # noqa: E402
+from tetweave_codec.classical import (  # noqa: E402
     DECIMATE_BRACKET_RATIO,
     MAX_BITS,
     MAX_DECIMATE_TRIES,
     MIN_BITS,
     MIN_KEEP,
     DracoMatch,
+    decimate,
     decimate_bits,
     decimate_draco_at_chamfer,
     draco_at_chamfer,
+    draco_decode,
+    draco_encode,
 )
-from tetweave_codec.bench.baselines import decimate, draco_decode, draco_encode  # noqa: E402
 from tetweave_codec.metrics.fidelity import chamfer_distance  # noqa: E402
 from tetweave_codec.metrics.rate_distortion import bytes_at, pareto_front  # noqa: E402
 
@@ -111,7 +113,7 @@ def test_context_of_a_visible_surface_encode_compresses_the_whole_input():
     fast-simplification + Draco compress the input as given, every face (their bytes include the hidden ball), and
     measure their error against the visible surface (the outer ball), as the encode's own Chamfer distance is; on
     the clean ball (auto -> all) nothing changes."""
-    from tetweave_codec.bench.anchor import classical_context
+    from tetweave_codec.classical import classical_context
     from tetweave_codec.fit.prepared import prepare_input
     from tetweave_codec.fit.visible import choose_surface
 

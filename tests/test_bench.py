@@ -14,29 +14,18 @@ from scipy.spatial import cKDTree
 
 from tetweave_codec.bench import baselines, pictures, report, sweep
 from tetweave_codec.bench.baselines import (
-    DRACO_COMPRESSION_LEVEL,
     MLAB_MISSING,
     DecimateDracoMethod,
     DecimationCache,
     DracoMethod,
-    decimate,
-    draco_decode,
-    draco_encode,
     mlab_decimate,
     mlab_draco_methods,
 )
-from tetweave_codec.bench.batch import (
-    COLUMNS,
-    MeshResult,
-    find_meshes,
-    mesh_labels,
-    reference_chamfer,
-    run_batch,
-    run_mesh,
-    run_method,
-)
+from tetweave_codec.bench.batch import find_meshes, mesh_labels, run_batch, run_mesh
 from tetweave_codec.bench.methods import Method, TetweaveMethod
+from tetweave_codec.bench.rows import COLUMNS, MeshResult, reference_chamfer, run_method
 from tetweave_codec.bench.sweep import adaptive_sweep
+from tetweave_codec.classical import DRACO_COMPRESSION_LEVEL, decimate, draco_decode, draco_encode
 from tetweave_codec.cli.main import main
 from tetweave_codec.meshio import save_mesh
 from tetweave_codec.metrics.common import MetricOptions

@@ -12,7 +12,7 @@ from tetweave_codec import encoder
 from tetweave_codec.cli.main import main
 from tetweave_codec.decoder import decode
 from tetweave_codec.encoder import encode
-from tetweave_codec.fit.config import default_quantization
+from tetweave_codec.formats.quantize import default_quantization
 from tetweave_codec.metrics import chamfer_distance, topology
 
 manifold3d = pytest.importorskip("manifold3d")

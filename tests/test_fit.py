@@ -9,10 +9,11 @@ import torch
 
 from tetweave_codec.errors import TetweaveError
 from tetweave_codec.fit import finish as fin
-from tetweave_codec.fit.config import QUALITY, FitConfig, LearningRates, Quantization, Schedule, schedule_for
+from tetweave_codec.fit.config import QUALITY, FitConfig, LearningRates, Schedule, schedule_for
 from tetweave_codec.fit.initialize import MIN_ABS_S
 from tetweave_codec.fit.step import FitContext, Params
 from tetweave_codec.formats import quantize as Q
+from tetweave_codec.formats.quantize import Quantization
 from tetweave_codec.geometry.delaunay import resolve_backend
 
 # --- config.schedule_for ---

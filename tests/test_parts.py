@@ -19,6 +19,7 @@ from tetweave_codec.fit import visible  # noqa: E402
 from tetweave_codec.fit.parts import closed_union, split_parts  # noqa: E402
 from tetweave_codec.fit.visible import choose_surface, outside_surface, visible_surface  # noqa: E402
 from tetweave_codec.meshio import normalize  # noqa: E402
+from tetweave_codec.render.visibility import RESOLUTION, bounding_radius, pixel_size  # noqa: E402
 
 
 def ball(radius=0.9, centre=(0.0, 0.0, 0.0), subdivisions=2):
@@ -205,7 +206,7 @@ def test_long_faces_are_split_to_a_pixel_at_seams():
     n, _, _ = normalize(v)
     assert not len(split_parts(n, f).closed)
     s = visible_surface(n, f)
-    pixel = visible.pixel_size(visible.RESOLUTION, visible.bounding_radius(n, f))
+    pixel = pixel_size(RESOLUTION, bounding_radius(n, f))
     centroids = s.vertices[s.faces].mean(axis=1)
     depth = np.max([-signed_distance(centroids, n, clean[o : o + 12]) for o in (0, 12, 24)], axis=0)
     area = face_areas(s.vertices, s.faces)

@@ -11,7 +11,7 @@ from tetweave_codec.cli.main import main
 from tetweave_codec.decoder import decode
 from tetweave_codec.encoder import encode
 from tetweave_codec.errors import InputError
-from tetweave_codec.fit.config import default_quantization
+from tetweave_codec.formats.quantize import default_quantization
 from tetweave_codec.job import FitSettings, make_job
 from tetweave_codec.rate_control import error as rc_error
 from tetweave_codec.rate_control import size as rc_size
@@ -265,7 +265,7 @@ def test_choose_keeps_the_steps_balanced_before_the_default_grid(monkeypatch):
     """`choose`: the default grid at steps up to BALANCED_STEP_SCALE x the default first, then another grid
     within that, then the rule before (default grid up to x2.0, else the largest estimate under the aim, else the
     smallest file)."""
-    from tetweave_codec.fit.config import default_quantization
+    from tetweave_codec.formats.quantize import default_quantization
     from tetweave_codec.rate_control import BALANCED_STEP_SCALE, SIZE_AIM, Candidate, choose
 
     assert BALANCED_STEP_SCALE == 1.4

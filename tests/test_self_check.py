@@ -103,9 +103,9 @@ def test_frame_and_unused_vertices_do_not_matter():
 
 
 def test_same_faces_as_the_fit_renders_and_at_the_fit_resolution():
-    """The shortcut (only faces that cover no pixel centre get the centroid test) is fit.visible's faces_seen."""
-    from tetweave_codec.fit.visible import render
+    """The shortcut (only faces that cover no pixel centre get the centroid test) is the renders' faces_seen."""
     from tetweave_codec.meshio import normalize
+    from tetweave_codec.render.visibility import render
 
     v, f = join(ball(0.9), ball(0.3, (0.2, -0.1, 0.05), subdivisions=2), ball(0.15, (0.0, 0.95, 0.0), 1))
     normalized, _, _ = normalize(v)
@@ -161,7 +161,8 @@ class StoresAsIs(Method):
 
 def test_bench_records_the_self_check_for_tetweave_rows(tmp_path):
     from tetweave_codec.bench import report
-    from tetweave_codec.bench.batch import COLUMNS, run_mesh
+    from tetweave_codec.bench.batch import run_mesh
+    from tetweave_codec.bench.rows import COLUMNS
     from tetweave_codec.metrics.common import MetricOptions
 
     outer, inner = ball(0.9), ball(0.3, (0.2, -0.1, 0.05), subdivisions=2)

@@ -13,8 +13,8 @@ from click.testing import CliRunner
 
 from tetweave_codec.cli.main import main
 from tetweave_codec.decoder import decode
-from tetweave_codec.fit.config import Quantization
 from tetweave_codec.formats import quantize as Q
+from tetweave_codec.formats.quantize import Quantization
 from tetweave_codec.geometry.marching_tets import check_manifold
 
 TET_V = [[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]]
@@ -51,7 +51,7 @@ def test_summary_context_of_a_tetrahedron_decimated_to_nothing():
     """fast-simplification turns a tetrahedron's 4 faces into none at small fractions: such a decimation is no file
     (Draco refused it with numpy's 'zero-size array' ValueError, the encode's exit 1), not a crash."""
     pytest.importorskip("DracoPy")
-    from tetweave_codec.bench.anchor import decimate_draco_at_chamfer
+    from tetweave_codec.classical import decimate_draco_at_chamfer
 
     v, f = np.array(TET_V, float), np.array(TET_F)
 

@@ -18,16 +18,12 @@ import numpy as np
 import torch
 
 from tetweave_codec.errors import InputError
-from tetweave_codec.fit.config import (
-    DEFAULT_SMOOTHING,
-    DEFAULT_SUBDIVISION,
-    Quantization,
-    schedule_for,
-)
+from tetweave_codec.fit.config import DEFAULT_SMOOTHING, DEFAULT_SUBDIVISION, schedule_for
 from tetweave_codec.fit.finish import complete, finish
 from tetweave_codec.fit.loop import deterministic_torch
 from tetweave_codec.fit.prepared import PreparedInput, prepare_input
 from tetweave_codec.fit.step import ProgressFn
+from tetweave_codec.formats.quantize import Quantization
 from tetweave_codec.geometry.triangles import face_areas
 from tetweave_codec.job import EncodeResult, FitSettings, Job
 from tetweave_codec.options import HOLES, LAYOUTS, MAX_POINTS, EncodeOptions, check_encode_arguments
@@ -173,7 +169,7 @@ def encode(
     quality: "fast", "default" or "best" (see fit.QUALITY); iters overrides its main+late iteration count.
     measure: compute the Chamfer distance between the input and the decoded mesh for `stats`.
     container_version: 2 (quantized, entropy-coded; default) or 1 (raw float16).
-    quantization: v2's position bits and steps; None = `fit.config.default_quantization(points)`.
+    quantization: v2's position bits and steps; None = `formats.quantize.default_quantization(points)`.
     size: rate control, the file is at most `size` bytes and at least 85 % of it (points and quantization are
         chosen by tetweave_codec.rate_control; `points` and `quantization` are ignored).
     max_error: rate control, the decoded mesh's Chamfer distance to the input (normalized frame, the summary's

@@ -15,11 +15,12 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import torch
 
-from tetweave_codec.fit.config import FitConfig, Quantization, Schedule, default_quantization, scaled_schedule
+from tetweave_codec.fit.config import FitConfig, Schedule, scaled_schedule
 from tetweave_codec.fit.finish import Finalized, FinishResult, finalize, finalize_cells
 from tetweave_codec.fit.loop import deterministic_torch
 from tetweave_codec.fit.prepared import PreparedInput
 from tetweave_codec.fit.step import FitContext, Params, ProgressFn
+from tetweave_codec.formats.quantize import Quantization, default_quantization
 from tetweave_codec.packing import SUMMARY_CHAMFER_SAMPLES, Packed, Packer
 
 
@@ -30,7 +31,7 @@ class EncodeResult:
     data: the `.tw` file. vertices (V,3) float64 and faces (F,3) int64: the decoded mesh, in the input's frame.
     stats: points_kept, sh_degree, bytes, seconds per stage, chamfer (normalized frame; None if not measured), ...
     prepared: the encode's prepared input (its normalized mesh and Chamfer reference), for comparisons measured
-    with the summary's own metric (`bench.anchor`, the CLI's plain-Draco line).
+    with the summary's own metric (`classical`, the CLI's plain-Draco line).
     """
 
     data: bytes

@@ -199,7 +199,7 @@ class EncodeOptions:
     def encoder_kwargs(self, device) -> dict:
         """Keyword arguments of `tetweave_codec.encoder.encode` (device: the resolved torch.device): the one
         translation of these options, which `encode(..., options=...)` applies."""
-        from tetweave_codec.fit.config import default_quantization
+        from tetweave_codec.formats.quantize import default_quantization
 
         overrides = (self.position_bits, self.s_step, self.c_step)
         if self.points is None and all(x is None for x in overrides):

@@ -30,10 +30,10 @@ def timed(fn, repeat: int):
 
 
 def fit_renders_share(v: np.ndarray, f: np.ndarray) -> float:
-    """The share by fit.visible's render + faces_seen at the fit's settings (every face tested)."""
-    from tetweave_codec.fit.visible import RESOLUTION, VIEWS, render
+    """The share by the fit's render + faces_seen at the fit's settings (every face tested)."""
     from tetweave_codec.geometry.triangles import face_areas
     from tetweave_codec.meshio import normalize
+    from tetweave_codec.render.visibility import RESOLUTION, VIEWS, render
 
     n, _, _ = normalize(v)
     seen, _ = render(n, f, VIEWS, RESOLUTION).faces_seen()

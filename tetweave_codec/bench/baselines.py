@@ -1,7 +1,8 @@
-"""Classical baselines of `tetweave bench`: Draco, and decimation followed by Draco.
+"""Classical baselines of `tetweave bench`: Draco, and decimation followed by Draco, as method families.
 
 Draco is the real library through DracoPy (positions quantized to `quantization_bits` over the bounding cube,
-connectivity with Edgebreaker). DracoPy's default compression level is 1, not the command-line tool's 7: the
+connectivity with Edgebreaker; the codecs and fast-simplification's decimation are tetweave_codec.classical's,
+which the encode summary uses too). DracoPy's default compression level is 1, not the command-line tool's 7: the
 level is always set explicitly here. Decimation at low rates beats quantizing the full mesh harder (fewer
 vertices to code at a given error); two decimators:
 
@@ -28,11 +29,11 @@ from collections.abc import Callable
 import numpy as np
 
 from tetweave_codec.bench.methods import DECIMATE_DRACO, DRACO, MLAB_DRACO, Method
+from tetweave_codec.classical import DRACO_COMPRESSION_LEVEL, decimate, draco_decode, draco_encode
 
 # Every bit depth from 8 to 16: the full mesh's front at high rates runs through each of them (fandisk at CD 5e-5
 # lies between 12 and 13 bits).
 DRACO_BITS = tuple(range(8, 17))
-DRACO_COMPRESSION_LEVEL = 7  # `draco_encoder`'s default (-cl 7); DracoPy defaults to 1
 DECIMATE_KEEP = (0.20, 0.10, 0.05, 0.02)  # fraction of the input's faces kept
 DECIMATE_BITS = (11, 14)
 # Fractions of the faces kept: eight per octave from 50 % down to 0.5 % (54 settings, 3 significant digits). The
@@ -57,44 +58,6 @@ MLAB_QUADRIC = {
     "autoclean": True,
 }
 MLAB_MISSING = 'mlab+draco needs pymeshlab: pip install "tetweave[bench]"'
-
-
-def draco_encode(vertices: np.ndarray, faces: np.ndarray, quantization_bits: int, compression_level: int) -> bytes:
-    import DracoPy
-
-    return bytes(
-        DracoPy.encode(
-            np.ascontiguousarray(vertices, dtype=np.float64),
-            np.ascontiguousarray(faces, dtype=np.uint32),
-            quantization_bits=quantization_bits,
-            compression_level=compression_level,
-        )
-    )
-
-
-def draco_decode(data: bytes) -> tuple[np.ndarray, np.ndarray]:
-    import DracoPy
-
-    mesh = DracoPy.decode(data)
-    vertices = np.asarray(mesh.points, dtype=np.float64).reshape(-1, 3)
-    faces = np.asarray(mesh.faces, dtype=np.int64).reshape(-1, 3)
-    return vertices, faces
-
-
-def decimate(vertices: np.ndarray, faces: np.ndarray, keep: float) -> tuple[np.ndarray, np.ndarray]:
-    """Quadric decimation to about `keep` (0..1] of the faces: vertices (V',3) float64, faces (F',3) int64."""
-    import fast_simplification
-
-    if not 0.0 < keep <= 1.0:
-        raise ValueError(f"keep must be in (0, 1], got {keep}")
-    if keep == 1.0:
-        return np.asarray(vertices, dtype=np.float64), np.asarray(faces, dtype=np.int64)
-    v, f = fast_simplification.simplify(
-        np.ascontiguousarray(vertices, dtype=np.float64),
-        np.ascontiguousarray(faces, dtype=np.int64),
-        target_reduction=1.0 - keep,
-    )
-    return np.asarray(v, dtype=np.float64), np.asarray(f, dtype=np.int64)
 
 
 def mlab_available() -> bool:

@@ -10,9 +10,9 @@ from pathlib import Path
 
 import numpy as np
 
-from tetweave_codec.bench.batch import MeshResult
 from tetweave_codec.bench.methods import DECIMATE_DRACO, DRACO, FAMILIES, MLAB_DRACO, TETWEAVE
 from tetweave_codec.bench.report import FOCUS_ORDER, as_number, ok_rows
+from tetweave_codec.bench.rows import MeshResult
 from tetweave_codec.meshio import write_bytes_atomic
 
 PICTURE_FAMILIES = FAMILIES

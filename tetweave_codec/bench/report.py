@@ -18,8 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
-from tetweave_codec.bench.batch import COLUMNS, INPUT_FAMILY
 from tetweave_codec.bench.methods import CLASSICAL, DECIMATE_DRACO, DRACO, MLAB_DRACO, TETWEAVE
+from tetweave_codec.bench.rows import COLUMNS, INPUT_FAMILY
 from tetweave_codec.meshio import write_bytes_atomic
 from tetweave_codec.metrics.rate_distortion import bytes_at, pareto_front
 
@@ -66,7 +66,7 @@ def _format_cell(value) -> str:
 
 
 def write_csv(rows: Sequence[dict], path: str | Path) -> None:
-    """One line per row, columns `batch.COLUMNS`; booleans as yes/no, floats to 6 significant digits."""
+    """One line per row, columns `rows.COLUMNS`; booleans as yes/no, floats to 6 significant digits."""
     buf = io.StringIO()
     writer = csv.DictWriter(buf, fieldnames=COLUMNS, extrasaction="ignore", lineterminator="\n")
     writer.writeheader()
@@ -266,7 +266,7 @@ def _target_mode(mesh_rows: Sequence[dict]) -> str | None:
 
 def target_line(mesh_rows: Sequence[dict], described: str | None = None) -> str:
     """One bullet naming what this mesh's Chamfer distances were measured against: `described`
-    (batch.MeshResult.target) when given, else from the rows' ``target`` column."""
+    (rows.MeshResult.target) when given, else from the rows' ``target`` column."""
     text = described or TARGET_TEXT.get(_target_mode(mesh_rows) or "", "")
     return f"- measured against {text}" if text else "- measured against: not recorded"
 
@@ -369,7 +369,7 @@ def write_summary(
     targets: dict[str, str] | None = None,
 ) -> None:
     """summary.md: a verdict per mesh, then per mesh its pictures and a table of every setting. targets: mesh ->
-    what its rows were measured against (`batch.MeshResult.target`); without it, the rows' ``target`` column."""
+    what its rows were measured against (`rows.MeshResult.target`); without it, the rows' ``target`` column."""
     by_mesh = rows_by_mesh(rows)
     out = ["# tetweave bench: compression against Draco", ""]
     if command:

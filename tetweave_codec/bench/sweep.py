@@ -16,7 +16,7 @@ kept fraction, or Draco's bits), those two points are
 
 With the Chamfer distance and the bytes monotone along every curve, L and R are the very points the full sweep's
 front has around e, so the matched size is the full sweep's. Measured settings are kept as rows; the search
-measures the Chamfer distance alone (`batch.reference_chamfer`, the same value as the full metrics); L and R of the
+measures the Chamfer distance alone (`rows.reference_chamfer`, the same value as the full metrics); L and R of the
 family smallest at each target get every metric (the verdict's normal consistency comparison, the tables). The
 decimations are shared by the bit depths (`baselines.DecimationCache`) and never depend on the search's order.
 """
@@ -30,8 +30,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from tetweave_codec.bench.batch import MeshResult, ProgressFn, encode_method, measure_method, say_row
 from tetweave_codec.bench.methods import Method
+from tetweave_codec.bench.rows import MeshResult, ProgressFn, encode_method, measure_method, say_row
 from tetweave_codec.metrics.common import MetricOptions
 from tetweave_codec.metrics.fidelity import Reference
 from tetweave_codec.metrics.rate_distortion import bytes_at, pareto_front

@@ -1,7 +1,8 @@
-"""Fit settings: schedules (the `--quality` presets), loss weights, step sizes, quantization and `FitConfig`.
+"""Fit settings: schedules (the `--quality` presets), loss weights, step sizes and `FitConfig`.
 
-Plain frozen dataclasses; every value that changes what the encoder writes lives here, so "same options, same
-bytes" can be read off one object.
+Plain frozen dataclasses; every value that changes what the encoder writes is held by `FitConfig` (its
+quantization a formats.quantize.Quantization, whose defaults live there), so "same options, same bytes" can be
+read off one object.
 """
 
 from __future__ import annotations
@@ -10,6 +11,7 @@ import math
 from dataclasses import dataclass, field, replace
 
 from tetweave_codec.errors import TetweaveError
+from tetweave_codec.formats.quantize import Quantization
 
 
 @dataclass(frozen=True)
@@ -121,58 +123,6 @@ class LearningRates:
     def paper(cls) -> LearningRates:
         """The paper's step sizes (Appendix A)."""
         return cls(points=3e-4, s=2e-3, c=3e-3, points_settle=3e-4)
-
-
-@dataclass(frozen=True)
-class Quantization:
-    """How the container v2 quantizes what the fit found (formats/quantize.py applies it).
-
-    position_bits: b, 2^b grid cells per axis over the fixed cube of formats.quantize.
-    s_step: step of the sign-preserving mid-rise quantizer of s (normalized-frame units).
-    c_band_steps: step of the SH coefficients of band l = 0, 1, 2, 3.
-    grid_scale: k in [1/2, 1]: the points are stored as k x their normalized positions, on the 2^b grid (the
-    file's transform divides k out), an effective resolution of b + log2 k bits between two integer grids
-    (formats.quantize.fractional_grid).
-    """
-
-    position_bits: int = 9
-    s_step: float = 3e-4
-    c_band_steps: tuple[float, float, float, float] = (0.2, 0.2, 0.2, 0.2)
-    grid_scale: float = 1.0
-
-
-def default_quantization(points: int) -> Quantization:
-    """Container v2's defaults for a fit of `points` grid points: a plain function of the options.
-
-    Chosen with benchmarks/bitstream.py --sweep (quantization-aware finish after the settle phase; bits per kept
-    point with headers; Chamfer relative to the same fit stored as v1):
-
-    =========  =====================  =====================  =====================
-    4K points  fandisk                spot                   stanford-bunny
-    =========  =====================  =====================  =====================
-    b 8        20.7 bits, 1.91x       20.9 bits, 1.10x       22.4 bits, 1.08x
-    b 9        23.6 bits, 1.61x       24.0 bits, 1.04x       25.4 bits, 1.05x
-    b 10       26.7 bits, 1.54x       27.0 bits, 1.05x       28.5 bits, 1.02x
-    b 9 s 4e-4 24.4 bits, 1.46x       24.7 bits, 1.04x       26.2 bits, 1.05x
-    b 9 c 0.3  22.4 bits, 1.67x       22.6 bits, 1.09x       23.9 bits, 1.06x
-    =========  =====================  =====================  =====================
-
-    (s step 7e-4 and c step 0.2 unless given.) At 16K: fandisk b 9 / 10 / 11 (s 3e-4): 20.3 / 23.3 / 26.3 bits,
-    1.32x / 1.17x / 1.13x; b 10 with s 2e-4: 24.0 bits, 1.08x; spot b 9 / 10 / 11: 1.06x / 1.03x / 1.02x, s 2e-4
-    1.01x. Each grid bit costs 3 bits per point; s steps matter on CAD shapes (fandisk), whose fits are the most
-    accurate; c steps of 0.3 instead of 0.2 save 1.4 bits per point at 4K for 1-5 % of error.
-
-    Those tables compare errors at equal points. At equal *bytes* a grid one bit coarser than the tables suggest
-    wins: rate-controlled files (`encode(size=..)`, s prediction on), bytes x Chamfer (lower is better), the
-    grid from floor(9.5 + ...) against floor(8.5 + ...) with the bytes-per-point model lowered by 12 % so that
-    the saved position bits buy points: spot 10 KB 5.38 -> 4.89, spot 40 KB 5.90 -> 5.43, fandisk 20 KB 3.69 ->
-    3.47, stanford-bunny 20 KB 15.99 -> 15.83, fandisk 5 KB 3.99 -> 4.05 (rate control kept b 8 there). Two bits
-    coarser was mixed (spot 10 KB 4.74, fandisk 20 KB 3.88, bunny 20 KB 14.67).
-    """
-    ratio = max(points, 1) / 4096.0
-    bits = int(min(16, max(6, math.floor(8.5 + 0.5 * math.log2(ratio)))))
-    c_step = 0.3 * ratio**-0.3
-    return Quantization(position_bits=bits, s_step=5e-4 * ratio**-0.66, c_band_steps=(c_step,) * 4)
 
 
 @dataclass(frozen=True)

@@ -20,10 +20,10 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from tetweave_codec.fit.config import Quantization
 from tetweave_codec.fit.initialize import MIN_ABS_S
 from tetweave_codec.fit.step import FitContext, Params, backward, regularized_loss, triangulate
 from tetweave_codec.formats import quantize as Q
+from tetweave_codec.formats.quantize import Quantization
 from tetweave_codec.geometry.active import active_mask
 
 # Smallest |s| a v1 file stores: float16 keeps its sign (and marching tets never puts a vertex exactly on a grid
@@ -66,7 +66,7 @@ class Finalized:
 
     points (N,3) float64: the decoded positions in the fit's frame (the positions the decoder triangulates,
     divided by grid_scale). s (N,), c (N,q): latent values. stored (N,3) float16 (v1) or cells (N,3) int64 in
-    canonical order (v2) on the 2^position_bits grid of the frame x grid_scale (`config.Quantization`).
+    canonical order (v2) on the 2^position_bits grid of the frame x grid_scale (`formats.quantize.Quantization`).
     keep_signs: the signs of s are the input's inside / outside (the grid layout's band, fit.grid), which the late
     stage keeps.
     """

@@ -303,7 +303,7 @@ def initial_state(
         seed: seed of the numpy Generator that draws the points.
         features: place points around sharp creases when the input has some.
         position_bits: the container's position grid, if known: feature points are snapped to its cell centres
-            (``fit.features.snap_to_grid``), on the grid of the frame x grid_scale (``config.Quantization``).
+            (``fit.features.snap_to_grid``), on the grid of the frame x grid_scale (``formats.quantize.Quantization``).
         **kwargs: forwarded to ``initial_points`` (shell, uniform_fraction, shell_gap).
     Returns:
         points (m,3) float32, s (m,) float32, c (m,q) float32 (zeros), m <= n; the first N_CORNERS points are

@@ -38,7 +38,7 @@ class PreparedInput:
     surface: "all" (the input's faces) or "visible" (`on_visible_surface`: vertices, faces and normalized are then
     the visible surface's, in the input's frame); surface_reason: why (the summary's phrase). given: on the
     visible surface, the input as the user gave it (every face, hidden ones included: what a classical codec
-    compresses, bench.anchor); None when this is that input (`source`).
+    compresses, classical.py); None when this is that input (`source`).
     """
 
     vertices: np.ndarray

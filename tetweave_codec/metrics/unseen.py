@@ -5,10 +5,11 @@ The encode summary's Chamfer distance measures the decoded mesh against the surf
 surface keeps strips inside the solid (parts that overlap or nest, with long faces: fit.visible splits a seam face
 only so often), the decoded mesh keeps them too, as membranes and bubbles inside the solid, and the distance to
 the same surface cannot see them. A viewer never sees them either: this module renders the decoded mesh itself
-from VIEWS near-orthographic views (fit.visible.render, no culling, read-only use) and sums the area of the faces
-that no view sees. A face counts as seen as fit.visible's `Renders.faces_seen` counts it: it covers a pixel centre
-in some view, or its centroid lies within half a pixel of the plane of the face the buffer holds there (faces
-smaller than a pixel). Decoded faces are about a pixel or smaller, so whole faces measure the area closely.
+from VIEWS near-orthographic views (render.visibility, no culling: the renders the fit's visible surface takes of
+its input) and sums the area of the faces that no view sees. A face counts as seen as `Renders.faces_seen` counts
+it: it covers a pixel centre in some view, or its centroid lies within half a pixel of the plane of the face the
+buffer holds there (faces smaller than a pixel). Decoded faces are about a pixel or smaller, so whole faces
+measure the area closely.
 
 On the clean decoded files of the four shared meshes (5-40 KB, 9k-320k faces) the share is at most 0.13 % (deep
 crevices of stanford-bunny at 40 KB), 0.2-2.5 s; RESOLUTION 256 instead of the fit's 384 agrees within 0.01
@@ -28,7 +29,7 @@ import numpy as np
 
 from tetweave_codec.geometry.triangles import face_areas, face_normals
 
-# The fit's views (fit.visible.VIEWS) at a lower resolution: the decoded mesh has no long faces to resolve, and
+# The fit's views (render.visibility.VIEWS) at a lower resolution: the decoded mesh has no long faces to resolve, and
 # 32 buffers at 384 px cost ~0.4 s even for a handful of faces. Meshes of few faces get fewer pixels, about one
 # face per pixel across (sqrt(F) px, in steps of 32): the renders are most of a small mesh's cost (0.26 s at
 # 256 px, 0.08 s at 128 px for 5k faces), and the faces of such a mesh cover pixel centres at the lower one.
@@ -55,9 +56,9 @@ def unseen_faces(
     renders of `resolution` pixels across (default `resolution_for` the faces).
 
     The mesh is centred and scaled as the encoder normalizes an input (meshio.normalize), so the answer does not
-    depend on its frame. InputError (fit.visible) above fit.visible.MAX_FACES faces."""
-    from tetweave_codec.fit.visible import MAX_FACES, render
+    depend on its frame. InputError above render.visibility.MAX_FACES faces."""
     from tetweave_codec.meshio import normalize
+    from tetweave_codec.render.visibility import MAX_FACES, render
 
     f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
     if len(f) == 0:
@@ -128,7 +129,7 @@ class SelfCheck:
 
 def self_check(vertices: np.ndarray, faces: np.ndarray) -> SelfCheck | None:
     """`unseen_area_share` of a decoded mesh (vertices (V,3) in any frame, faces (F,3)) with its time, or None when
-    it is not measured (no faces, or more than fit.visible.MAX_FACES)."""
+    it is not measured (no faces, or more than render.visibility.MAX_FACES)."""
     from tetweave_codec.errors import InputError
 
     if len(faces) == 0:

@@ -16,10 +16,10 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from tetweave_codec.errors import InputError
-from tetweave_codec.fit.config import Quantization, default_quantization
 from tetweave_codec.fit.finish import FinishResult, complete, requantize
 from tetweave_codec.fit.loop import deterministic_torch
 from tetweave_codec.fit.step import FitContext
+from tetweave_codec.formats.quantize import Quantization, default_quantization
 from tetweave_codec.rate_control.prior import PRIOR_ERROR_POINTS, mesh_prior
 from tetweave_codec.rate_control.size import MAX_RATE_POINTS, MIN_RATE_POINTS, scaled
 

@@ -16,14 +16,14 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from tetweave_codec.errors import InputError
-from tetweave_codec.fit.config import Quantization, default_quantization
 from tetweave_codec.fit.finish import FinishResult, complete, finalize, requantize
 from tetweave_codec.fit.loop import deterministic_torch
 from tetweave_codec.formats import quantize as Q
+from tetweave_codec.formats.quantize import Quantization, default_quantization
 from tetweave_codec.rate_control.prior import input_detail
 
 # v2 bytes per fitted grid point at the default quantization (kept fraction x bits per kept point / 8), after s
-# prediction and with the grid one bit coarser (fit.config.default_quantization), measured with
+# prediction and with the grid one bit coarser (formats.quantize.default_quantization), measured with
 # benchmarks/bitstream.py on the four development meshes.
 BYTES_PER_POINT_4K = 2.1
 BYTES_PER_POINT_16K = 1.95

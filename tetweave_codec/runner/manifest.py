@@ -5,7 +5,7 @@ input across runs), ``sha256`` of the input's bytes, ``options`` (everything tha
 ``status`` (``ok`` / ``failed`` / ``skipped``), ``input_bytes``, ``bytes`` (output size), ``points`` (points
 stored), ``chamfer`` (decoded mesh to input, normalized frame; null when not measured), ``draco_bytes`` and
 ``decimate_draco_bytes`` (plain Draco and fast-simplification + Draco of the input at that Chamfer distance, the
-encoder summary's context, `bench.anchor.classical_context`; null where no setting brackets it),
+encoder summary's context, `classical.classical_context`; null where no setting brackets it),
 ``unseen_area_share`` (encode: the share in [0, 1] of the decoded mesh's area that no outside view sees, the
 summary's self-check, `metrics.unseen`: above 0.01 membranes or hidden parts were kept inside the solid; null when
 not measured or for a decode), ``seconds`` (the file's

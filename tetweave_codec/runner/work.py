@@ -56,7 +56,7 @@ def encode_file(task: Task) -> dict:
 
     Returns {"status": "ok", "data": .tw bytes, "bytes", "points" (stored), "points_target" (grid points of the
     fit), "chamfer", "draco_bytes", "decimate_draco_bytes" (the summary's classical context:
-    `bench.anchor.classical_context`), "unseen_area_share" (the share of the decoded area no outside view sees,
+    `classical.classical_context`), "unseen_area_share" (the share of the decoded area no outside view sees,
     `metrics.unseen.self_check`; None when not measured, as with options.measure off), "device", "seconds",
     "mesh_sha256" (`mesh_sha256` of the loaded mesh)} or a
     failed result with the one-line error (and mesh_sha256 when the mesh loaded). Same task, same bytes, in any
@@ -100,7 +100,7 @@ def encode_file(task: Task) -> dict:
 def _classical_record(result) -> dict:
     """The encoder summary's classical context for a manifest record: {"draco_bytes", "decimate_draco_bytes"}
     (null where not measured)."""
-    from tetweave_codec.bench.anchor import encode_context
+    from tetweave_codec.classical import encode_context
 
     context = encode_context(result)
     return context["record"] if context else {"draco_bytes": None, "decimate_draco_bytes": None}

@@ -1,10 +1,20 @@
-"""Plain Draco of an input at a given Chamfer distance: the size a user gets without tetweave.
+"""The classical pipelines a user has without tetweave, and their size at a given Chamfer distance.
 
-`tetweave encode` puts its file in context with this number (the issue 41 summary line). Draco quantizes the
-input's positions to a bit depth and keeps its connectivity; its Chamfer distance roughly halves per bit. The size
-at an error e is read the way `tetweave bench` reads any family (`metrics.rate_distortion.bytes_at`: log(bytes)
-against log(error), linear between the two bit depths that bracket e, never extrapolated), on the bit depths
-a bisection visits: about four Draco encodes and Chamfer estimates instead of nine.
+The codecs: plain Draco (DracoPy: positions quantized to a bit depth over the bounding cube, connectivity with
+Edgebreaker; the compression level always set, DRACO_COMPRESSION_LEVEL, as DracoPy's default is 1, not the
+command-line tool's 7) and fast-simplification's quadric decimation (`decimate`). `tetweave bench` runs them as
+method families (bench/baselines.py, beside MeshLab's decimation); `tetweave encode`'s summary and the batch
+manifest put each file in context with them (`encode_context`).
+
+Plain Draco of an input at a given Chamfer distance: Draco quantizes the input's positions to a bit depth and keeps
+its connectivity; its Chamfer distance roughly halves per bit. The size at an error e is read the way `tetweave
+bench` reads any family (`metrics.rate_distortion.bytes_at`: log(bytes) against log(error), linear between the two
+bit depths that bracket e, never extrapolated), on the bit depths a bisection visits: about four Draco encodes and
+Chamfer estimates instead of nine (`draco_at_chamfer`). fast-simplification + Draco there: a bracket search over
+the fraction of faces kept at four bit depths (`decimate_draco_at_chamfer`).
+
+    data = draco_encode(vertices, faces, 11, DRACO_COMPRESSION_LEVEL);  vertices, faces = draco_decode(data)
+    context = encode_context(result)   # {"draco", "decimate", "lines", "record"} | None (encoder.EncodeResult)
 """
 
 from __future__ import annotations
@@ -15,8 +25,48 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tetweave_codec.bench.baselines import DRACO_COMPRESSION_LEVEL, draco_decode, draco_encode
 from tetweave_codec.metrics.rate_distortion import bytes_at, pareto_front
+
+DRACO_COMPRESSION_LEVEL = 7  # `draco_encoder`'s default (-cl 7); DracoPy defaults to 1
+
+
+def draco_encode(vertices: np.ndarray, faces: np.ndarray, quantization_bits: int, compression_level: int) -> bytes:
+    import DracoPy
+
+    return bytes(
+        DracoPy.encode(
+            np.ascontiguousarray(vertices, dtype=np.float64),
+            np.ascontiguousarray(faces, dtype=np.uint32),
+            quantization_bits=quantization_bits,
+            compression_level=compression_level,
+        )
+    )
+
+
+def draco_decode(data: bytes) -> tuple[np.ndarray, np.ndarray]:
+    import DracoPy
+
+    mesh = DracoPy.decode(data)
+    vertices = np.asarray(mesh.points, dtype=np.float64).reshape(-1, 3)
+    faces = np.asarray(mesh.faces, dtype=np.int64).reshape(-1, 3)
+    return vertices, faces
+
+
+def decimate(vertices: np.ndarray, faces: np.ndarray, keep: float) -> tuple[np.ndarray, np.ndarray]:
+    """Quadric decimation to about `keep` (0..1] of the faces: vertices (V',3) float64, faces (F',3) int64."""
+    import fast_simplification
+
+    if not 0.0 < keep <= 1.0:
+        raise ValueError(f"keep must be in (0, 1], got {keep}")
+    if keep == 1.0:
+        return np.asarray(vertices, dtype=np.float64), np.asarray(faces, dtype=np.int64)
+    v, f = fast_simplification.simplify(
+        np.ascontiguousarray(vertices, dtype=np.float64),
+        np.ascontiguousarray(faces, dtype=np.int64),
+        target_reduction=1.0 - keep,
+    )
+    return np.asarray(v, dtype=np.float64), np.asarray(f, dtype=np.int64)
+
 
 MIN_BITS = 8  # Draco's coarsest useful depth here: at 7 bits most inputs collapse into visible steps
 MAX_BITS = 16  # past 16 bits Draco's files grow with no error left to remove at the Chamfer metric's resolution
@@ -158,8 +208,6 @@ def decimate_draco_at_chamfer(
     DECIMATE_BRACKET_RATIO (MAX_DECIMATE_TRIES steps at most); a fraction is decimated once for every depth. The
     size is read off the Pareto front of every (fraction, depth) measured. `distance` as in `draco_at_chamfer`.
     """
-    from tetweave_codec.bench.baselines import decimate
-
     n = max(len(faces), 1)
     depths = sorted({min(max(bits + d, MIN_BITS), MAX_BITS) for d in around}, reverse=True)
     meshes: dict[float, tuple[np.ndarray, np.ndarray]] = {}
