@@ -201,6 +201,62 @@ def encode(
         _check_no_other_options(locals())
         kwargs = options.encoder_kwargs(resolve_device(options.device))
         return encode(vertices, faces, progress=progress, **kwargs)
+    given = {k: v for k, v in locals().items() if k not in ("vertices", "faces", "options", "surface")}
+    result = _encode(vertices, faces, surface=surface, **given)
+    if surface == "auto" and measure and result.prepared.outside_differs:
+        result = _checked(result, lambda: _encode(vertices, faces, surface="visible", **given))
+    return result
+
+
+def _checked(result: EncodeResult, outside) -> EncodeResult:
+    """The self-check acting (metrics.unseen): when `auto` kept every face of an input whose outside surface is
+    another (open or inconsistently oriented pieces: `PreparedInput.outside_differs`) and more than WARN_SHARE of
+    the decoded area is hidden from every outside view, something chose wrong: `outside()` encodes the outside
+    surface (--surface visible) and the file whose decoded mesh the check finds less hidden is kept; the summary's
+    reason says so. (Closed parts alone, disjoint or touching, are their own outside surface: nothing to try.)"""
+    from tetweave_codec.metrics.unseen import WARN_SHARE, self_check
+
+    check = self_check(result.vertices, result.faces)
+    if check is None or check.share <= WARN_SHARE:
+        return result
+    other = outside()
+    other_check = self_check(other.vertices, other.faces)
+    if other_check is None:
+        return result
+    kept, dropped = (other, result) if other_check.share < check.share else (result, other)
+    what = "the outside surface" if kept is other else "every face"
+    kept.stats["surface_reason"] = (
+        f"{kept.stats.get('surface_reason', '')}; the self-check found {100 * check.share:.1f} % of the decoded "
+        f"area hidden with every face, {100 * other_check.share:.1f} % with the outside surface: kept {what}"
+    )
+    return kept
+
+
+def _encode(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    *,
+    points: int | None,
+    sh_degree: int | None,
+    quality: str,
+    iters: int | None,
+    device,
+    seed: int,
+    init: str,
+    progress: ProgressFn | None,
+    measure: bool,
+    container_version: int,
+    quantization: Quantization | None,
+    size: int | None,
+    max_error: float | None,
+    smoothing: int | None,
+    subdivision: int | None,
+    layout: str,
+    holes: str,
+    keep_creases: bool | None,
+    surface: str,
+) -> EncodeResult:
+    """`encode` with `surface` as given (the self-check does not act here); every option as `encode` has it."""
     check_encode_arguments(
         points=points,
         sh_degree=sh_degree,
@@ -217,14 +273,17 @@ def encode(
     )
     v, f = _validate(vertices, faces)
     prepared = prepare_input(v, f, seed=seed, keep_holes=holes == "keep")
+    sizing_faces = len(f)  # the faces the default fit's size follows (`default_points`)
     if surface != "all":
         from tetweave_codec.fit.visible import choose_surface
 
         choice = choose_surface(prepared.normalized, prepared.faces, surface)
         if choice.mode == "visible":
             prepared = prepared.on_visible_surface(choice.surface, choice.reason)
+            sizing_faces = target_faces(choice.surface, len(f))
         else:
             prepared.surface_reason = choice.reason
+            prepared.outside_differs = choice.outside_differs
     if smoothing is None or subdivision is None or sh_degree is None or keep_creases is None:
         chosen = prepared_defaults(prepared)
         if container_version != 2:  # version 1 stores neither filter
@@ -234,11 +293,11 @@ def encode(
         sh_degree = chosen.sh_degree if sh_degree is None else sh_degree
         keep_creases = chosen.creases if keep_creases is None else keep_creases
     schedule = schedule_for(quality, iters)
-    small = points is None and size is None and max_error is None and small_input(len(f), subdivision)
+    small = points is None and size is None and max_error is None and small_input(sizing_faces, subdivision)
     if small:  # a tiny input's default fit: see SMALL_INPUT_SAMPLES
         schedule = replace(schedule, surface_samples=SMALL_INPUT_SAMPLES)
     if points is None:
-        points = default_points(len(f), subdivision)
+        points = default_points(sizing_faces, subdivision)
     settings = FitSettings(
         sh_degree=sh_degree,
         schedule=schedule,
@@ -283,6 +342,14 @@ def default_points(input_faces: int, subdivision: int) -> int:
     decoder's `subdivision` Loop levels (each multiplies the faces by 4)."""
     per_point = CONTROL_FACES_PER_POINT * 4**subdivision
     return int(min(DEFAULT_POINTS, max(MIN_DEFAULT_POINTS, DEFAULT_FACE_RATIO * input_faces / per_point)))
+
+
+def target_faces(surface, input_faces: int) -> int:
+    """The faces the default fit's size follows when the encode fits `surface` (fit.visible.VisibleSurface) of an
+    input of `input_faces` faces: the surface's own, at most the input's. Hidden parts and inner walls are not the
+    shape's detail (a ball with a hidden ball inside is sized as the ball alone); the pieces the union cuts at seams
+    and renders split to pixels are not either (parts through each other are sized by their faces, not more)."""
+    return min(input_faces, len(surface.faces))
 
 
 def small_input(input_faces: int, subdivision: int) -> bool:

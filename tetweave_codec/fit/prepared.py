@@ -52,6 +52,9 @@ class PreparedInput:
     surface: str = "all"
     surface_reason: str = ""
     given: PreparedInput | None = None
+    # auto kept every face though the input's outside surface differs from it (open or inconsistently oriented
+    # pieces beside or without closed parts): the self-check may try that surface (encoder._checked)
+    outside_differs: bool = False
     _targets: dict = field(default_factory=dict, repr=False)
     _references: dict = field(default_factory=dict, repr=False)
 

@@ -90,6 +90,7 @@ class SurfaceChoice:
     mode: str
     reason: str
     surface: VisibleSurface | None = None
+    outside_differs: bool = False  # mode "all" although the outside surface is another (open or unoriented pieces)
 
 
 def _split(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -393,7 +394,8 @@ def choose_surface(vertices: np.ndarray, faces: np.ndarray, surface: str) -> Sur
             return SurfaceChoice("visible", f"faces with inconsistent orientation; {_describe(out)}", out)
         if out.hidden_share > HIDDEN_AREA_SHARE:
             return SurfaceChoice("visible", _describe(out), out)
-        return SurfaceChoice("all", f"closed and open parts, {_pct(out.hidden_share)} of the area hidden or inside")
+        reason = f"closed and open parts, {_pct(out.hidden_share)} of the area hidden or inside"
+        return SurfaceChoice("all", reason, outside_differs=True)
     consistent = orientation_consistent(v, f)
     visible = visible_surface(v, f)
     hidden = f"{_pct(visible.hidden_share)} of its area hidden from every view"
@@ -401,7 +403,7 @@ def choose_surface(vertices: np.ndarray, faces: np.ndarray, surface: str) -> Sur
         return SurfaceChoice("visible", f"faces with inconsistent orientation; {hidden}", visible)
     if visible.hidden_share > HIDDEN_AREA_SHARE:
         return SurfaceChoice("visible", hidden, visible)
-    return SurfaceChoice("all", f"a consistently oriented surface, {hidden}")
+    return SurfaceChoice("all", f"a consistently oriented surface, {hidden}", outside_differs=True)
 
 
 def _pct(share: float) -> str:
