@@ -102,7 +102,7 @@ async function show(buffer, name, newFile) {
   mesh.geometry = geometry;
   mesh.visible = true;
   current = { name, buffer };
-  if (newFile) fitCamera(geometry);
+  if (newFile && info.faceCount > 0) fitCamera(geometry); // an empty mesh (all s of one sign) has no sphere
   setInfo("name", name, name);
   setInfo("bytes", info.bytes);
   setInfo("faces", info.faceCount);
@@ -110,7 +110,9 @@ async function show(buffer, name, newFile) {
   setInfo("points", info.stats.points);
   setInfo("ms", info.decodeMs, `${info.decodeMs.toFixed(1)} ms (${LEVEL_NAMES[info.stats.level]} level)`);
   render();
-  setState("ready", info.stats.gaveUp ? "the decoder dropped this file's filter (no crossing-free result)" : "");
+  let note = info.faceCount === 0 ? "an empty mesh: every point of the file is on one side of the surface" : "";
+  if (info.stats.gaveUp) note = "the decoder dropped this file's filter (no crossing-free result)";
+  setState("ready", note);
 }
 
 async function openFile(file) {
