@@ -388,6 +388,15 @@ def test_viewer_in_headless_chromium(tmp_path):
             page.wait_for_function("document.body.dataset.state === 'ready'", timeout=60_000)
             assert int(page.get_attribute("#faces", "data-value")) == faces["control"]
             assert page.is_hidden("#error")
+
+            # the ES module alone on the page's thread: createDecoder() finds the .wasm beside itself
+            direct = page.evaluate("""async (name) => {
+              const { createDecoder } = await import("/tetweave_decoder.mjs");
+              const bytes = await (await fetch("/file/" + name)).arrayBuffer();
+              const mesh = (await createDecoder()).decode(bytes, { level: "full" });
+              return [mesh.faceCount, mesh.positions.constructor.name, mesh.indices.constructor.name];
+            }""", SPOT.name)  # fmt: skip
+            assert direct == [faces["full"], "Float32Array", "Uint32Array"]
             browser.close()
     finally:
         view.stop()
