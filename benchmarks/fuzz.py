@@ -31,10 +31,20 @@ surface: one sign only, or points spanning no volume), and the failures ``non_ma
 ``error`` (any other exception, TopologyError included), ``timeout`` and ``crash`` (the worker died).
 Case i uses the generator ``numpy.random.default_rng([seed, i])``, so ``--only i`` replays one case.
 
+`decode_detailed` runs the C decoder core (decoder/, through tetweave_codec._decoder_native) on every file of the
+current format and the Python pipeline on earlier encoders' files. ``--compare`` also decodes each case with the
+Python pipeline (decoder.CORE off, the reference) and reports ``mismatch`` when the two differ: not the same
+error class, or not the same vertices, faces, closed surface, extracted faces, tets and restores bit for bit.
+``--harness`` also runs every case through tests/core_decode_harness.c, the whole tw_decode built with
+-fsanitize=address,undefined -fno-sanitize-recover=all (each file in a child process, allocations over
+``--memory-gb`` refused): a sanitizer report or a dead child is a ``crash``, a status that disagrees with the
+worker's outcome a ``mismatch`` (checkout only: it compiles decoder/*.c with the C compiler).
+
     python -m tetweave_codec.benchmarks.fuzz --cases 10000
     python -m tetweave_codec.benchmarks.fuzz --cases 500 --files a.tw b.tw --out fuzz.md
     python -m tetweave_codec.benchmarks.fuzz --only 1234 -v
     python -m tetweave_codec.benchmarks.fuzz --cases 10000 --files-only --files a.tw b.tw c.tw d.tw
+    python -m tetweave_codec.benchmarks.fuzz --cases 2000 --compare --harness
 """
 
 from __future__ import annotations
@@ -42,10 +52,15 @@ from __future__ import annotations
 import argparse
 import collections
 import multiprocessing as mp
+import os
+import shutil
 import struct
+import subprocess
 import sys
+import tempfile
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -63,7 +78,7 @@ from tetweave_codec.formats.common import (
 )
 from tetweave_codec.formats.tw2 import FIXED_SIZE, MAX_POINTS, header_size, pack_v2, quantize_file
 
-FAILURES = ("non_manifold", "self_intersecting", "error", "timeout", "crash")
+FAILURES = ("non_manifold", "self_intersecting", "error", "timeout", "crash", "mismatch")
 OUTCOMES = ("rejected", "closed", "open", "empty", *FAILURES)
 NO_RESEAL_SHARE = 0.05  # cases whose sizes and CRC are left as the mutations made them
 MAX_MUTATIONS = 3
@@ -188,6 +203,51 @@ def _with_holes(data: bytes) -> bytes | None:
         return None
     tw = unpack_v2(data)
     return pack_v2(replace(tw, flags=tw.flags | FLAG_HOLES, holes=np.sort(face_ranks(f0)[remove]), sizes=None))
+
+
+def hostile_files(seeds: list[tuple[str, bytes]]) -> list[tuple[str, bytes]]:
+    """Valid-CRC files that announce far more than they hold, made from the first exact seed files (name, bytes):
+
+    * ``points-*``: N = 2^22 - 1, 2^22 (the most a file may declare), 2^22 + 1 and 2^32 - 1 over the sections of a
+      seed at SH degree 3 and -1 (the decoder allocates O(N (4 + q)) before its octree finds the leaves missing);
+    * ``holes-*`` on a seed with a surface of F0 faces: K = 64 N (the most the section's framing allows: 2^28 for
+      a file of 2^22 points, which a decoder that took K at its word would allocate), K = F0 + 1, a rank F0, a
+      rank 2^32 - 1, every face (a valid file whose mesh is empty) and the top rank alone (valid);
+    * ``empty-holes``: a holes section on a file whose s has one sign (no surface to open).
+    """
+    from dataclasses import replace
+
+    from tetweave_codec.decoder import decode_detailed
+    from tetweave_codec.formats.tw2 import unpack_v2
+
+    exact = [(name, data) for name, data in seeds if data[12] & BITS_EXACT and not data[10] & FLAG_HOLES]
+    out = []
+    for degree in (3, -1):
+        name, data = next(
+            (n, d) for n, d in exact if struct.unpack_from("<b", d, 11)[0] == degree and d[13:17] != b"\0" * 4
+        )
+        for n in (MAX_POINTS - 1, MAX_POINTS, MAX_POINTS + 1, 2**32 - 1):
+            body = bytearray(data[:-CHECKSUM_SIZE])
+            struct.pack_into("<I", body, 13, n)
+            out.append((f"points-{n}-d{degree}", seal(bytes(body))))
+    for _, data in exact:
+        f0 = len(decode_detailed(data).extracted_faces)
+        if f0 >= 8:
+            break
+    tw = unpack_v2(data)
+    top = f0 - 1
+    for label, ranks in (
+        ("max-k", np.arange(64 * tw.num_points)),
+        ("k-over-f0", np.arange(f0 + 1)),
+        ("rank-f0", np.array([3, f0])),
+        ("rank-2^32-1", np.array([0, 2**32 - 1])),
+        ("every-face", np.arange(f0)),
+        ("top-rank", np.array([top])),
+    ):
+        out.append((f"holes-{label}", pack_v2(replace(tw, flags=tw.flags | FLAG_HOLES, holes=ranks, sizes=None))))
+    one_sign = replace(tw, s_sym=np.abs(tw.s_sym), flags=tw.flags | FLAG_HOLES, holes=np.array([0]), sizes=None)
+    out.append(("empty-holes", pack_v2(one_sign)))
+    return out
 
 
 # -----------------------------------------------------------------------------------------------------------
@@ -399,11 +459,16 @@ def mutate(rng: np.random.Generator, seeds: list[bytes]) -> tuple[int, bytes, li
 # one case, in a worker
 
 
-def classify(data: bytes) -> tuple[str, str]:
-    """Decode `data` and name the outcome (see module doc) with a one-line detail."""
+def classify(data: bytes, compare: bool = False) -> tuple[str, str]:
+    """Decode `data` and name the outcome (see module doc) with a one-line detail; compare: a difference between
+    the decoder core and the Python pipeline is the outcome "mismatch"."""
     from tetweave_codec import decoder
     from tetweave_codec.errors import ContainerError
 
+    if compare:
+        problem = pipeline_difference(data)
+        if problem:
+            return "mismatch", problem
     try:
         result = decoder.decode_detailed(data)
     except ContainerError as exc:
@@ -411,6 +476,46 @@ def classify(data: bytes) -> tuple[str, str]:
     except Exception as exc:  # noqa: BLE001 -- every other exception is a finding of the campaign
         return "error", f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}"
     return classify_result(result)
+
+
+def _decode_with(data: bytes, core: bool, level: str):
+    """decode_detailed through the core (core=True: what decoder.decode runs) or the Python pipeline: the result, or
+    the exception it raised."""
+    from tetweave_codec import decoder
+
+    saved = decoder.CORE
+    decoder.CORE = core and saved
+    try:
+        return decoder.decode_detailed(data, level=level)
+    except Exception as exc:  # noqa: BLE001 -- the caller compares what each pipeline raised
+        return exc
+    finally:
+        decoder.CORE = saved
+
+
+def pipeline_difference(data: bytes, levels: tuple[str, ...] = ("full",)) -> str | None:
+    """How the decoder core and the Python pipeline (decoder.CORE off, the reference) differ on `data` (None when
+    they agree): the error class of a refused file, else every array and count of the decode, bit for bit."""
+    from tetweave_codec import decoder
+
+    if not decoder.CORE:
+        return None  # no core extension: both are the Python pipeline
+    for level in levels:
+        got, ref = _decode_with(data, True, level), _decode_with(data, False, level)
+        if isinstance(ref, MemoryError) or isinstance(got, MemoryError):
+            continue  # the worker's memory cap, met by one pipeline: not a difference of the decoders
+        if isinstance(got, Exception) or isinstance(ref, Exception):
+            if type(got) is not type(ref):
+                return f"{level}: core {type(got).__name__}: {got}, reference {type(ref).__name__}: {ref}"
+            continue
+        for name in ("vertices", "faces", "closed_vertices", "closed_faces", "extracted_faces"):
+            a, b = getattr(got, name), getattr(ref, name)
+            if a.shape != b.shape or a.dtype != b.dtype or not np.array_equal(a, b):
+                return f"{level}: {name} differ (core {a.shape} {a.dtype}, reference {b.shape} {b.dtype})"
+        for name in ("num_tets", "restored", "smoothing", "subdivision", "backend"):
+            if getattr(got, name) != getattr(ref, name):
+                return f"{level}: {name} {getattr(got, name)} against the reference's {getattr(ref, name)}"
+    return None
 
 
 def classify_result(result) -> tuple[str, str]:
@@ -494,7 +599,7 @@ def crossing_problem(v: np.ndarray, f: np.ndarray) -> str | None:
     return None
 
 
-def _worker(conn, memory_gb: float) -> None:
+def _worker(conn, memory_gb: float, compare: bool = False) -> None:
     """Decode what arrives on `conn` until None; memory capped so that a runaway allocation fails here."""
     try:
         import resource
@@ -508,7 +613,7 @@ def _worker(conn, memory_gb: float) -> None:
         if data is None:
             return
         try:
-            conn.send(classify(data))
+            conn.send(classify(data, compare))
         except MemoryError:
             conn.send(("error", "MemoryError"))
 
@@ -516,14 +621,14 @@ def _worker(conn, memory_gb: float) -> None:
 class Runner:
     """A worker process that decodes one case at a time; restarted after a timeout or a crash."""
 
-    def __init__(self, time_limit: float, memory_gb: float):
-        self.time_limit, self.memory_gb = time_limit, memory_gb
+    def __init__(self, time_limit: float, memory_gb: float, compare: bool = False):
+        self.time_limit, self.memory_gb, self.compare = time_limit, memory_gb, compare
         self.ctx = mp.get_context("spawn")
         self.proc = None
 
     def _start(self) -> None:
         self.conn, child = self.ctx.Pipe()
-        self.proc = self.ctx.Process(target=_worker, args=(child, self.memory_gb), daemon=True)
+        self.proc = self.ctx.Process(target=_worker, args=(child, self.memory_gb, self.compare), daemon=True)
         self.proc.start()
 
     def _stop(self) -> None:
@@ -556,6 +661,118 @@ class Runner:
 
 
 # -----------------------------------------------------------------------------------------------------------
+# the C decoder core under sanitizers (tests/core_decode_harness.c)
+
+ROOT = Path(__file__).resolve().parent.parent
+HARNESS_SOURCE = ROOT / "tests" / "core_decode_harness.c"
+CORE_SOURCES = ROOT / "decoder"
+SANITIZE = ("-fsanitize=address,undefined", "-fno-sanitize-recover=all")
+# ASan reserves terabytes of address space (no RLIMIT_AS under it): its own cap refuses single allocations over
+# the limit instead (malloc returns NULL, as under RLIMIT_AS), and a leak is a report.
+ASAN_OPTIONS = "detect_leaks=1:abort_on_error=0:allocator_may_return_null=1:max_allocation_size_mb={mb}"
+HARNESS_DEAD = 99  # statuses >= this: the child did not end normally (99), or died of signal status - 100
+
+
+def harness_compiler() -> str | None:
+    """The C compiler for the harness ($CC, else cc / gcc / clang on PATH), or None."""
+    for name in (os.environ.get("CC"), "cc", "gcc", "clang"):
+        if name and shutil.which(name):
+            return name
+    return None
+
+
+def build_harness(directory: str | Path, sanitize: bool = True) -> Path | None:
+    """Compile tests/core_decode_harness.c with every decoder/*.c into `directory` (the core's flags; with ASan
+    and UBSan when `sanitize`): the executable, or None without a checkout, a compiler or sanitizer support."""
+    cc = harness_compiler()
+    if cc is None or not HARNESS_SOURCE.exists() or not CORE_SOURCES.is_dir():
+        return None
+    exe = Path(directory) / ("decode_harness_asan" if sanitize else "decode_harness")
+    flags = ["-std=c99", "-ffp-contract=off", "-fno-fast-math", "-Wall", "-Wextra"]
+    flags += ["-O1", "-g", "-fno-omit-frame-pointer", *SANITIZE] if sanitize else ["-O2"]
+    sources = [*sorted(map(str, CORE_SOURCES.glob("*.c"))), str(HARNESS_SOURCE)]
+    run = subprocess.run([cc, *flags, "-o", str(exe), *sources, "-lm", "-pthread"], capture_output=True, text=True)
+    return exe if run.returncode == 0 else None
+
+
+@dataclass
+class HarnessRow:
+    """One file's decode by the harness: tw_status (>= HARNESS_DEAD: the child died), counts, peak RSS, message."""
+
+    status: int
+    vertices: int
+    faces: int
+    peak_rss_kib: int
+    message: str
+    report: str = ""  # what the decode wrote on stderr (a sanitizer report)
+
+
+def run_harness(
+    exe: str | Path,
+    blobs: list[bytes],
+    level: int = 2,
+    limit_mb: int = 0,
+    sanitized: bool = True,
+    out: str | Path | None = None,
+    timeout: float = 600,
+) -> tuple[list[HarnessRow], str]:
+    """Decode `blobs` with the harness `exe` (one child process per file): a row per file and the harness's stderr
+    (sanitizer reports). limit_mb: the memory cap (RLIMIT_AS of each child, or ASan's largest allocation when
+    `sanitized`; 0 none); out: a folder for the decoded arrays (i.v float64, i.f uint32)."""
+    with tempfile.TemporaryDirectory(prefix="twfuzz") as tmp:
+        paths = []
+        for i, data in enumerate(blobs):
+            path = Path(tmp) / f"{i:06d}.tw"
+            path.write_bytes(data)
+            paths.append(str(path))
+        cmd = [str(exe), "--level", str(level)]
+        if out is not None:
+            cmd += ["--out", str(out)]
+        env = {"PATH": os.environ.get("PATH", "/usr/bin:/bin")}
+        if sanitized:
+            env["ASAN_OPTIONS"] = ASAN_OPTIONS.format(mb=limit_mb or 1 << 20)
+            env["UBSAN_OPTIONS"] = "print_stacktrace=1"
+        elif limit_mb:
+            cmd += ["--limit-mb", str(limit_mb)]
+        run = subprocess.run([*cmd, *paths], capture_output=True, text=True, timeout=timeout, env=env)
+    rows = {}
+    for line in run.stdout.splitlines():
+        index, status, nv, nf, rss, *message = line.split(" ", 5)
+        rows[int(index)] = HarnessRow(int(status), int(nv), int(nf), int(rss), " ".join(message))
+    missing = HarnessRow(HARNESS_DEAD, 0, 0, 0, "no answer from the harness")
+    result = [rows.get(i, missing) for i in range(len(blobs))]
+    index = None
+    for line in run.stderr.splitlines():  # "== i FILE" starts file i's part of stderr
+        if line.startswith("== ") and line.split(" ")[1].isdigit():
+            index = int(line.split(" ")[1])
+        elif index is not None and index < len(result) and line.strip():
+            result[index].report += line + "\n"
+    return result, run.stderr
+
+
+# tw_status codes (decoder/tetweave_decoder.h) and the worker's outcomes they agree with
+HARNESS_AGREES = {
+    0: ("closed", "open", "empty"),
+    1: ("rejected",),
+    3: ("rejected",),  # TW_ERROR_LIMIT: the Python pipeline's face cap is a ContainerError too
+}
+
+
+def harness_disagreement(row: HarnessRow, outcome: str) -> tuple[str, str] | None:
+    """("crash" | "mismatch", detail) when the harness's answer is a failure or disagrees with the worker's outcome
+    of the same file through decoder.decode_detailed; None when they agree (or the core left the file to the Python
+    pipeline: an earlier encoder's, status 2)."""
+    if row.status >= HARNESS_DEAD:
+        signal = f"signal {row.status - 100}" if row.status > HARNESS_DEAD else "abnormal exit"
+        return "crash", f"core harness: {signal} (sanitizer report or crash)"
+    if row.status == 2 or outcome in FAILURES:  # an earlier encoder's file, or a finding already
+        return None
+    if outcome not in HARNESS_AGREES.get(row.status, ()):
+        return "mismatch", f"core harness status {row.status} ({row.message}) but the worker's outcome is {outcome}"
+    return None
+
+
+# -----------------------------------------------------------------------------------------------------------
 # the campaign
 
 
@@ -569,10 +786,11 @@ class Campaign:
     mutations: collections.Counter = field(default_factory=collections.Counter)
     findings: list = field(default_factory=list)
     seconds: float = 0.0
+    harness: collections.Counter = field(default_factory=collections.Counter)  # agree / crash / mismatch / memory
 
     @property
     def failures(self) -> int:
-        return sum(self.counts[k] for k in FAILURES)
+        return sum(self.counts[k] for k in FAILURES) + self.harness["crash"] + self.harness["mismatch"]
 
 
 def _backend_flag(data: bytes) -> str:
@@ -589,16 +807,42 @@ def run_campaign(
     memory_gb: float = DEFAULT_MEMORY_GB,
     only: list[int] | None = None,
     progress=None,
+    compare: bool = False,
+    harness: str | Path | None = None,
+    harness_batch: int = 200,
 ) -> Campaign:
-    """Run `cases` mutated files (or just the case numbers in `only`) through the decoder; see module doc."""
+    """Run `cases` mutated files (or just the case numbers in `only`) through the decoder; see module doc.
+    compare: the worker also compares the core with the Python pipeline; harness: a sanitized
+    tests/core_decode_harness.c executable (build_harness) that decodes every case too, `harness_batch` at a time."""
     blobs = [b for _, b in seeds]
     result = Campaign()
-    runner = Runner(time_limit, memory_gb)
+    runner = Runner(time_limit, memory_gb, compare)
+    pending: list[tuple[int, int, bytes, list[str], str]] = []
+
+    def flush() -> None:
+        if not pending:
+            return
+        rows, _ = run_harness(harness, [p[2] for p in pending], limit_mb=int(memory_gb * 1024))
+        for (i, index, _, applied, outcome), row in zip(pending, rows, strict=True):
+            found = harness_disagreement(row, outcome)
+            result.harness["memory" if row.status == 4 else found[0] if found else "agree"] += 1
+            if found:
+                summary = [line for line in row.report.splitlines() if "SUMMARY" in line or "runtime error" in line]
+                detail = found[1] + (f"; {summary[0].strip()}" if summary else "")
+                result.findings.append((i, seeds[index][0], applied, found[0], detail))
+                if progress is not None:
+                    progress(i, found[0], detail, seeds[index][0], applied)
+        pending.clear()
+
     start = time.perf_counter()
     try:
         for i in only if only is not None else range(cases):
             index, data, applied = mutate(np.random.default_rng([seed, i]), blobs)
             outcome, detail = runner.run(data)
+            if harness is not None:
+                pending.append((i, index, data, applied, outcome))
+                if len(pending) >= harness_batch:
+                    flush()
             result.counts[outcome] += 1
             result.by_backend[outcome, _backend_flag(data)] += 1
             for name in applied:
@@ -609,6 +853,8 @@ def run_campaign(
                 result.findings.append((i, seeds[index][0], applied, outcome, detail))
             if progress is not None:
                 progress(i, outcome, detail, seeds[index][0], applied)
+        if harness is not None:
+            flush()
     finally:
         runner.close()
     result.seconds = time.perf_counter() - start
@@ -642,6 +888,12 @@ def report(result: Campaign, seeds: list[tuple[str, bytes]], cases: int, seed: i
             f"| {name} | {result.counts[name]:,} | {result.by_backend[name, 'exact']:,} | "
             f"{result.by_backend[name, 'tetgen']:,} | {result.by_backend[name, 'qhull']:,} |"
         )
+    if result.harness:
+        lines += [
+            "",
+            "The C decoder core under ASan + UBSan (tests/core_decode_harness.c, one process per case): "
+            + ", ".join(f"{k} {v:,}" for k, v in sorted(result.harness.items())),
+        ]
     lines += ["", "Mutations applied: " + ", ".join(f"{k} {v:,}" for k, v in result.mutations.most_common()), ""]
     lines += ["Rejections by message:", ""] + [f"* {k}: {v:,}" for k, v in result.reasons.most_common()]
     found = result.findings
@@ -666,6 +918,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--only", type=int, nargs="*", help="replay these case numbers")
     parser.add_argument("--out", help="write the Markdown report here")
     parser.add_argument("-v", "--verbose", action="store_true", help="one line per case")
+    parser.add_argument(
+        "--compare", action="store_true", help="also decode with the Python pipeline: a difference is a mismatch"
+    )
+    parser.add_argument(
+        "--harness", action="store_true", help="also decode every case with the C core under ASan + UBSan (checkout)"
+    )
     args = parser.parse_args(argv)
     seeds = [] if args.files_only else seed_files(args.seed, args.max_points)
     for path in args.files:
@@ -680,7 +938,13 @@ def main(argv: list[str] | None = None) -> int:
         elif (i + 1) % 500 == 0:
             print(f"{i + 1} cases", file=sys.stderr, flush=True)
 
-    result = run_campaign(seeds, args.cases, args.seed, args.time_limit, args.memory_gb, args.only, progress)
+    with tempfile.TemporaryDirectory(prefix="twharness") as tmp:
+        exe = build_harness(tmp) if args.harness else None
+        if args.harness and exe is None:
+            parser.error("--harness needs a checkout (decoder/, tests/) and a C compiler with ASan + UBSan")
+        result = run_campaign(
+            seeds, args.cases, args.seed, args.time_limit, args.memory_gb, args.only, progress, args.compare, exe
+        )
     text = report(result, seeds, args.cases, args.seed)
     if args.out:
         with open(args.out, "w") as fh:

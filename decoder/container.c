@@ -221,17 +221,8 @@ static int parse_header(const unsigned char *data, size_t size, tw_file *file, u
     return TW_OK;
 }
 
-/*
- * tw_parse -- parse and validate a `.tw` file.
- *   data, size: the file's bytes (data may be NULL when size is 0).
- *   file:       receives the header fields and malloc'ed arrays (release with tw_file_free); zeroed on failure.
- *   err:        the status and a one-line message on failure (may be NULL).
- * Returns TW_OK, TW_ERROR_INVALID (malformed, truncated or corrupted: the reference's ContainerError),
- * TW_ERROR_UNSUPPORTED (version 1, or a version-2 file not triangulated by the exact Delaunay), TW_ERROR_MEMORY,
- * TW_ERROR_ARGUMENT (file NULL, or data NULL with size > 0). Memory: O(N (4 + q)) for the N the header announces
- * (N <= 2^22), allocated only after the header and the checksum are valid.
- */
-int tw_parse(const unsigned char *data, size_t size, tw_file *file, tw_error *err) {
+/* tw_parse's work; defer: check the holes section's framing and record its place instead of decoding it. */
+static int parse_file(const unsigned char *data, size_t size, tw_file *file, int defer, tw_error *err) {
     if (!file) return tw_fail(err, TW_ERROR_ARGUMENT, "tw_parse: no tw_file to fill");
     memset(file, 0, sizeof *file);
     if (!data && size) return tw_fail(err, TW_ERROR_ARGUMENT, "tw_parse: NULL data of %zu bytes", size);
@@ -245,7 +236,7 @@ int tw_parse(const unsigned char *data, size_t size, tw_file *file, tw_error *er
     const uint32_t n = file->n;
     if (n == 0) { /* every section is empty (checked): no points, no arrays */
         if (with_holes) { /* a holes section needs points: its empty section is truncated (holes.decode_holes) */
-            status = tw_decode_holes(data + file->sizes[0], 0, 0, &file->holes, &file->hole_count, err);
+            status = tw_check_holes_section(data + file->sizes[0], 0, 0, err);
             if (!status) status = tw_fail(err, TW_ERROR_INVALID, "invalid .tw payload: a holes section without points");
             tw_file_free(file);
         }
@@ -285,7 +276,10 @@ int tw_parse(const unsigned char *data, size_t size, tw_file *file, tw_error *er
     status = tw_decode_c(sec[2], sizes[2], n, file->sh_degree, c_sym, err);
     if (status) goto done;
     if (with_holes) {
-        status = tw_decode_holes(sec[3], sizes[3], n, &file->holes, &file->hole_count, err);
+        if (defer)
+            status = tw_check_holes_section(sec[3], sizes[3], n, err);
+        else
+            status = tw_decode_holes(sec[3], sizes[3], n, &file->holes, &file->hole_count, err);
         if (status) goto done;
     }
     tw_dequantize_positions(file->cells, n, file->position_bits, file->points);
@@ -297,4 +291,44 @@ done:
     free(c_sym);
     if (status) tw_file_free(file);
     return status;
+}
+
+/*
+ * tw_parse -- parse and validate a `.tw` file.
+ *   data, size: the file's bytes (data may be NULL when size is 0).
+ *   file:       receives the header fields and malloc'ed arrays (release with tw_file_free); zeroed on failure.
+ *   err:        the status and a one-line message on failure (may be NULL).
+ * Returns TW_OK, TW_ERROR_INVALID (malformed, truncated or corrupted: the reference's ContainerError),
+ * TW_ERROR_UNSUPPORTED (version 1, or a version-2 file not triangulated by the exact Delaunay), TW_ERROR_MEMORY,
+ * TW_ERROR_ARGUMENT (file NULL, or data NULL with size > 0). Memory: O(N (4 + q)) for the N the header announces
+ * (N <= 2^22), allocated only after the header and the checksum are valid, plus 14 bytes per hole face of a holes
+ * section (K <= 64 N; tw_parse_deferred leaves them to the decoder, which bounds K by its surface).
+ */
+int tw_parse(const unsigned char *data, size_t size, tw_file *file, tw_error *err) {
+    return parse_file(data, size, file, 0, err);
+}
+
+/* tw_parse_deferred -- tw_parse with the holes section's ranks left undecoded (internal.h). */
+int tw_parse_deferred(const unsigned char *data, size_t size, tw_file *file, tw_error *err) {
+    return parse_file(data, size, file, 1, err);
+}
+
+/* tw_file_holes_pending -- flags bit 7 (n > 0: tw_parse refuses a holes section without points) and no ranks. */
+int tw_file_holes_pending(const tw_file *file) {
+    return (file->flags & FLAG_HOLES) && file->n && !file->holes;
+}
+
+/*
+ * tw_file_decode_holes -- the ranks of a holes section tw_parse_deferred left undecoded: data / size are the
+ * file's bytes given to tw_parse_deferred (the section lies between the c section, at sizes[0..3] from the start,
+ * and the checksum), max_faces the extracted surface's face count F0 (0: bounded by 64 N only). On success
+ * file->holes / hole_count hold the ranks (each < F0 when max_faces is not 0). Errors: tw_decode_holes_bounded's
+ * (file unchanged). TW_ERROR_ARGUMENT when size is not the parsed file's.
+ */
+int tw_file_decode_holes(const unsigned char *data, size_t size, tw_file *file, uint64_t max_faces, tw_error *err) {
+    if (!tw_file_holes_pending(file)) return TW_OK;
+    const size_t at = file->sizes[0] + file->sizes[1] + file->sizes[2] + file->sizes[3];
+    if (size < at + CHECKSUM_SIZE) return tw_fail(err, TW_ERROR_ARGUMENT, "tw_file_decode_holes: not the parsed file");
+    return tw_decode_holes_bounded(data + at, size - at - CHECKSUM_SIZE, file->n, max_faces, &file->holes,
+                                   &file->hole_count, err);
 }

@@ -9,8 +9,10 @@
  *   tw_filter_surface   the level's Taubin steps and Loop levels, the output transform, the crossing checks
  *   tw_open_holes       the holes section's faces removed (with their 4^L children, or 1 when the filter was dropped)
  *
- * Memory: the parse is O(N (4 + q)) for N <= 2^22 points; the Delaunay O(N) tets; the filter refuses more than
- * TW_MAX_FACES faces before it subdivides. Every stage frees what it made before the next one runs where it can.
+ * Memory: the parse is (52 + 12 q) N bytes at most for N <= 2^22 points; the Delaunay O(N) tets; the holes
+ * section's ranks are decoded after marching tets, K <= F0 checked before their allocation (tw_parse_deferred only
+ * checks the section's framing); the filter refuses more than TW_MAX_FACES faces before it subdivides. Every stage
+ * frees what it made before the next one runs where it can (formats/README.md, "Decoder limits").
  */
 #include <stdlib.h>
 #include <string.h>
@@ -61,7 +63,7 @@ int tw_decode_detailed(const unsigned char *data, size_t size, const tw_decode_o
     memset(&opened, 0, sizeof opened);
     tw_file *file = &detail->file;
     tw_decode_stats *stats = &detail->stats;
-    int status = tw_parse(data, size, file, err);
+    int status = tw_parse_deferred(data, size, file, err);
     if (status) goto done;
     /* the level's filter (decoder.level_filter) */
     const int smoothing = options->level == TW_LEVEL_CONTROL ? 0 : file->smoothing;
@@ -77,6 +79,18 @@ int tw_decode_detailed(const unsigned char *data, size_t size, const tw_decode_o
     tw_tets_free(&tz);
     if (status) goto done;
     stats->extracted_faces = detail->control.nf;
+    /* The holes section's ranks, now that F0 bounds them (tw_parse checked its framing). Before the filter: the
+     * reference decodes them with the container, so a stream that does not decode is reported before any filter
+     * error, as there; a rank >= F0, which the reference reports after the filter, is the same error class as every
+     * error the filter can give a manifold control surface (ContainerError). */
+    if (tw_file_holes_pending(file)) {
+        if (!detail->control.nf) {
+            status = tw_fail(err, TW_ERROR_INVALID, "invalid .tw file: a holes section but the surface has 0 faces");
+            goto done;
+        }
+        status = tw_file_decode_holes(data, size, file, detail->control.nf, err);
+        if (status) goto done;
+    }
     uint64_t restored = 0;
     int gave_up = 0;
     status = tw_filter_surface(&detail->control, smoothing, subdivision, file->creases, file->scale, file->offset,

@@ -48,13 +48,25 @@ typedef struct tw_file {
     double *points;          /* n * 3, dequantized (normalized frame) */
     double *s;               /* n */
     double *c;               /* n * q (NULL when q == 0) */
-    int64_t *holes;          /* hole_count strictly increasing face ranks (NULL when none) */
+    int64_t *holes;          /* hole_count strictly increasing face ranks (NULL when none, or not decoded yet) */
     size_t hole_count;
     size_t sizes[5];         /* bytes of header, positions, s, c, checksum */
 } tw_file;
 
 int tw_parse(const unsigned char *data, size_t size, tw_file *file, tw_error *err);
 void tw_file_free(tw_file *file);
+
+/* tw_parse without decoding the holes section's ranks (file->holes stays NULL): only its framing is checked where
+ * tw_parse decodes it (tw_check_holes_section), so a file's errors keep their class and, but for the stream's own,
+ * their order; the decoder reads the ranks after marching tets with tw_file_decode_holes, bounded by the surface's
+ * face count F0 rather than by 64 N (2^28 ranks for a hostile file of 2^22 points). */
+int tw_parse_deferred(const unsigned char *data, size_t size, tw_file *file, tw_error *err);
+/* Whether `file` (from tw_parse_deferred) has a holes section whose ranks are not decoded yet. */
+int tw_file_holes_pending(const tw_file *file);
+/* The pending ranks of `file` from the same `data` / `size` (the section is the bytes between the c section and
+ * the checksum), K <= max_faces (0: no bound but 64 N): file->holes and hole_count set. A file without pending
+ * ranks: TW_OK, nothing done. */
+int tw_file_decode_holes(const unsigned char *data, size_t size, tw_file *file, uint64_t max_faces, tw_error *err);
 
 /* ---- positions, s prediction, dequantization (octree.c, predict.c, dequantize.c; container.c: tw_parse) ---- */
 
@@ -215,6 +227,8 @@ int tw_decode_holes(const unsigned char *section, size_t size, uint32_t n, int64
  * 14 bytes each, for a hostile file of 2^22 points). */
 int tw_decode_holes_bounded(const unsigned char *section, size_t size, uint32_t n, uint64_t max_faces,
                             int64_t **ranks, size_t *count, tw_error *err);
+/* The holes section's framing alone (K in 1..64 max(n, 1), the histogram, whole words), allocating nothing. */
+int tw_check_holes_section(const unsigned char *section, size_t size, uint32_t n, tw_error *err);
 
 
 /* ---- filter: crossing checks, Taubin, creases, Loop, restores, holes (intersect.c, filter.c, loop.c, holes.c) - */
