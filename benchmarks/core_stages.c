@@ -4,7 +4,7 @@
  *
  * Built from the decoder/*.c of any revision, with decoder/filter.c compiled under
  *   -Dtw_self_intersecting=bench_self_intersecting -Dtw_loop_level=bench_loop_level
- *   -Dtw_half_edges=bench_half_edges
+ *   -Dtw_half_edges=bench_half_edges -Dtw_self_intersecting_kept=bench_self_intersecting_kept
  * so that the filter's calls of those stages land in the timed wrappers below (the real functions, compiled from
  * intersect.c and loop.c without the renaming, do the work). The stages run as tw_decode_detailed runs them
  * (decode.c): parse, Delaunay, marching tets, the filter, the holes, then the export copy of decode.c.
@@ -36,10 +36,18 @@ static double now(void) {
 static double t_edges, t_loop, t_check, t_recheck;
 static int verbose; /* -v: one line per crossing check on stderr (faces, marked, flagged, ms) */
 
-int bench_self_intersecting(const double *v, size_t nv, const int32_t *f, size_t nf, const uint8_t *only,
-                            int children, int threads, uint8_t *flags) {
+/* One crossing check's time into check or recheck (and its line with -v); st: a tw_check_state or NULL. */
+static int timed_check(void *st, const double *v, size_t nv, const int32_t *f, size_t nf, const uint8_t *only,
+                       const uint8_t *changed, int children, int threads, uint8_t *flags) {
     double t0 = now();
+#ifdef TW_CHECK_STATE
+    int status = tw_self_intersecting_kept((tw_check_state *)st, v, nv, f, nf, only, changed, children, threads,
+                                           flags);
+#else
+    (void)st;
+    (void)changed;
     int status = tw_self_intersecting(v, nv, f, nf, only, children, threads, flags);
+#endif
     double dt = now() - t0;
     *(only ? &t_recheck : &t_check) += dt;
     if (verbose) {
@@ -53,6 +61,19 @@ int bench_self_intersecting(const double *v, size_t nv, const int32_t *f, size_t
     }
     return status;
 }
+
+int bench_self_intersecting(const double *v, size_t nv, const int32_t *f, size_t nf, const uint8_t *only,
+                            int children, int threads, uint8_t *flags) {
+    return timed_check(NULL, v, nv, f, nf, only, NULL, children, threads, flags);
+}
+
+#ifdef TW_CHECK_STATE /* a core whose restore rounds keep the check's state (internal.h) */
+int bench_self_intersecting_kept(tw_check_state *st, const double *v, size_t nv, const int32_t *f, size_t nf,
+                                 const uint8_t *only, const uint8_t *changed, int children, int threads,
+                                 uint8_t *flags) {
+    return timed_check(st, v, nv, f, nf, only, changed, children, threads, flags);
+}
+#endif
 
 int bench_loop_level(const double *v, const double *r, size_t nv, const int32_t *f, size_t nf, const int32_t *rows,
                      const uint8_t *crease, double *out_v, double *out_r, int32_t *out_f, int32_t *out_ends) {

@@ -36,7 +36,7 @@ LEVELS = {"control": 0, "smoothed": 1, "full": 2}
 FLAGS = ["-O2", "-ffp-contract=off", "-fno-fast-math", "-pthread"]
 # filter.c's calls of these land in the driver's timed wrappers
 RENAMES = ["-Dtw_self_intersecting=bench_self_intersecting", "-Dtw_loop_level=bench_loop_level",
-           "-Dtw_half_edges=bench_half_edges"]  # fmt: skip
+           "-Dtw_half_edges=bench_half_edges", "-Dtw_self_intersecting_kept=bench_self_intersecting_kept"]  # fmt: skip
 STAGES = ("parse", "delaunay", "marching", "filter", "edges", "taubin", "loop", "check", "recheck", "holes", "export",
           "total")  # fmt: skip
 

@@ -172,17 +172,21 @@ static int restore_crossings(double *v, const double *reference, size_t nv, cons
                              int children, int threads, uint64_t *restored, int *gave_up, tw_error *err) {
     uint8_t *bad = (uint8_t *)malloc(nf > 0 ? nf : 1), *interest = (uint8_t *)malloc(nf > 0 ? nf : 1);
     uint8_t *done = (uint8_t *)calloc(nv > 0 ? nv : 1, 1), *back = (uint8_t *)malloc(nv > 0 ? nv : 1);
+    uint8_t *changed = (uint8_t *)malloc(nf > 0 ? nf : 1); /* faces with a vertex put back since the last check */
+    /* the checks after the first mark few faces: their boxes, grid and count are kept from check to check */
+    tw_check_state *state = tw_check_state_new();
     int result = TW_OK, use_interest = 0; /* the first check tests every pair */
     *gave_up = 1;
     *restored = 0;
-    if (!bad || !interest || !done || !back) {
+    if (!bad || !interest || !done || !back || !changed || !state) {
         result = memory(err);
         goto out;
     }
     for (int check = 0; check < TW_MAX_CHECKS; check++) {
         /* later checks test only pairs with a face that just changed or crossed at the last check: a pair of two
          * other faces was tested at these same positions and did not cross (the reference's argument) */
-        int status = tw_self_intersecting(v, nv, f, nf, use_interest ? interest : NULL, children, threads, bad);
+        int status = tw_self_intersecting_kept(state, v, nv, f, nf, use_interest ? interest : NULL,
+                                               use_interest ? changed : NULL, children, threads, bad);
         if (status == 1) break; /* the check cannot bound its work: no filter */
         if (status != 0) {
             result = check_failed(status, err);
@@ -210,11 +214,15 @@ static int restore_crossings(double *v, const double *reference, size_t nv, cons
             done[i] = 1;
         }
         if (!moved) break; /* the crossing faces are at their reference already: more checks find them again */
-        for (size_t i = 0; i < nf; i++)
-            interest[i] = (uint8_t)(bad[i] || back[f[3 * i]] || back[f[3 * i + 1]] || back[f[3 * i + 2]]);
+        for (size_t i = 0; i < nf; i++) {
+            changed[i] = (uint8_t)(back[f[3 * i]] || back[f[3 * i + 1]] || back[f[3 * i + 2]]);
+            interest[i] = (uint8_t)(bad[i] || changed[i]);
+        }
         use_interest = 1;
     }
 out:
+    tw_check_state_free(state);
+    free(changed);
     free(bad);
     free(interest);
     free(done);

@@ -245,6 +245,17 @@ int tw_crossings_stars(const double *v, size_t nv, const int32_t *f, size_t nf, 
                        int threads, uint8_t *flags); /* as marked; children 1 or 4 (runs of Loop children) */
 int tw_self_intersecting(const double *v, size_t nv, const int32_t *f, size_t nf, const uint8_t *only, int children,
                          int threads, uint8_t *flags); /* 0 done, 1 no feasible grid, -1 memory, -2 bad index */
+/* Crossing checks kept across restore rounds (intersect.c): tw_self_intersecting_kept gives tw_self_intersecting's
+ * status and flags, reusing the last call's boxes, cell size, count and cell lists where it proves them unchanged
+ * (checks that mark few faces). st: from tw_check_state_new (NULL: tw_self_intersecting); changed: NULL, or nf
+ * bytes, nonzero for each face with a vertex moved since the last call with st (same f, nf, nv, and f's contents
+ * unchanged; otherwise the state is computed afresh). tw_check_state_new: NULL when out of memory. */
+#define TW_CHECK_STATE 1
+typedef struct tw_check_state tw_check_state;
+tw_check_state *tw_check_state_new(void);
+void tw_check_state_free(tw_check_state *st);
+int tw_self_intersecting_kept(tw_check_state *st, const double *v, size_t nv, const int32_t *f, size_t nf,
+                              const uint8_t *only, const uint8_t *changed, int children, int threads, uint8_t *flags);
 
 /* Taubin, creases (filter.c; geometry/smoothing.py). rows: ne directed edges (a, b) as 2 * ne int32. */
 #define TW_TAUBIN_LAMBDA 0.5

@@ -276,9 +276,13 @@ static double kth_value(double *a, int64_t n, int64_t k) {
 }
 
 /* The reference's first cell size: 2 * median(ext[0..n)) (numpy's median: the mean of the two middle values for
- * even n), or the largest extent where that is not > 0, or 1. n >= 1. Clobbers `sorted` (n items). */
-static double first_cell(const double *ext, double *sorted, int64_t n) {
+ * even n), or the largest extent where that is not > 0, or 1. n >= 1. Clobbers `sorted` (n items). ranks: NULL,
+ * or 3 doubles out: ranks[0] = 1 when the size is 2 * median > 0 of extents in a total order (no NaN, no sign bit)
+ * -- then it is a function of the multiset of extents and of ranks[1], ranks[2], the (n - 1) / 2-th and n / 2-th
+ * smallest (tw_check_state keeps them) -- else 0. */
+static double first_cell(const double *ext, double *sorted, int64_t n, double *ranks) {
     double upper, median, cell;
+    if (ranks) ranks[0] = 0;
     if (radix_kth(ext, n, n / 2, sorted, &upper)) { /* no NaN, no sign bit: comparisons are a total order */
         median = upper;
         if (n % 2 == 0) {
@@ -289,8 +293,15 @@ static double first_cell(const double *ext, double *sorted, int64_t n) {
                 if (ext[i] < upper && (below++ == 0 || ext[i] > lower)) lower = ext[i];
             if (below <= n / 2 - 1) lower = upper;
             median = (lower + upper) / 2.0;
+            if (ranks) ranks[1] = lower;
+        } else if (ranks) {
+            ranks[1] = upper;
         }
         cell = 2.0 * median;
+        if (ranks) {
+            ranks[0] = cell > 0;
+            ranks[2] = upper;
+        }
         if (!(cell > 0)) {
             cell = ext[0];
             for (int64_t i = 1; i < n; i++)
@@ -743,7 +754,7 @@ int tw_crossings_grid(const double *v, size_t nv_, const int32_t *f, size_t nf_,
         status = -1;
         goto done;
     }
-    double cell = first_cell(ext, sorted, n);
+    double cell = first_cell(ext, sorted, n, NULL);
     free(sorted);
     double origin[3];
     for (int k = 0; k < 3; k++) {
@@ -895,6 +906,7 @@ typedef struct {
     double cell, limit;
     int64_t dims_y, dims_z;
     uint16_t *counts;
+    int32_t *rng; /* NULL, or 6 int32 per face: its cells (tw_check_state keeps them) */
     int shared, failed; /* failed: a bound is crossed (shared: read and set atomically) */
     double total[MAX_WORKERS];
     long long pairs[MAX_WORKERS];
@@ -920,6 +932,8 @@ static void grid_count(void *ctx, int64_t begin, int64_t end, int worker) {
         }
         int64_t c[6];
         total += cell_range(b, b + 3, g->origin, g->cell, c);
+        if (g->rng)
+            for (int k = 0; k < 6; k++) g->rng[6 * i + k] = (int32_t)c[k]; /* dims < 2^25 (MAX_DENSE_CELLS) */
         if (total > g->limit) {
             ok = 0;
             break;
@@ -960,12 +974,23 @@ static void grid_count(void *ctx, int64_t begin, int64_t end, int worker) {
  * faces are counted in chunks: the entries and pairs are sums of integers, and every bound is crossed by the
  * total when it is crossed by a prefix of the serial loop (the increments are positive), so the answer is the
  * serial one. */
+/* What first_grid_feasible hands to a caller that keeps its count (tw_check_state): first_cell's ranks, and when
+ * the answer is 1, the dense count (counts: dims[0] dims[1] dims[2] cells, malloc'd, the caller's), the grid's
+ * entries and its pairs in cells. */
+typedef struct {
+    double ranks[3];
+    uint16_t *counts;
+    int32_t *rng; /* in: 6 int32 per face for the faces' cells (when the answer is 1), or NULL */
+    int64_t total;
+    long long pairs;
+} GridKeep;
+
 static int first_grid_feasible(const CheckFaces *s, const double *lo, const double *hi, int64_t nf, int64_t n,
                                const double *ext, const double *origin, const double *top, double *cell_out,
-                               int64_t *dims, int threads) {
+                               int64_t *dims, int threads, GridKeep *keep) {
     double *sorted = (double *)malloc(sizeof(double) * (size_t)n);
     if (!sorted) return -1;
-    double cell = first_cell(ext, sorted, n);
+    double cell = first_cell(ext, sorted, n, keep ? keep->ranks : NULL);
     free(sorted);
     *cell_out = cell;
     /* floor is monotone: the largest upper cell is that of the largest upper coordinate */
@@ -994,6 +1019,7 @@ static int first_grid_feasible(const CheckFaces *s, const double *lo, const doub
     g->dims_y = dims[1];
     g->dims_z = dims[2];
     g->shared = workers > 1;
+    g->rng = keep ? keep->rng : NULL;
     parallel_for(workers, nf, PASS_CHUNK, grid_count, g);
     double total = 0;
     long long pairs = 0;
@@ -1002,7 +1028,13 @@ static int first_grid_feasible(const CheckFaces *s, const double *lo, const doub
         pairs += g->pairs[w];
     }
     int ok = !g->failed && total <= g->limit && pairs <= MAX_CANDIDATE_PAIRS;
-    free(g->counts);
+    if (keep && ok) { /* total: a sum of integers below 2^53, exact */
+        keep->counts = g->counts;
+        keep->total = (int64_t)total;
+        keep->pairs = pairs;
+    } else {
+        free(g->counts);
+    }
     free(g);
     return ok;
 }
@@ -1111,49 +1143,52 @@ typedef struct {
     double cell;
 } MarkedLoop;
 
-static void marked_loop(void *ctx, int64_t begin, int64_t end, int worker) {
-    (void)worker;
-    const MarkedLoop *c = (const MarkedLoop *)ctx;
+/* Valid face i's box scans the marked faces listed in its cells (marked_loop's body). */
+static void marked_scan(const MarkedLoop *c, int64_t i) {
     const int64_t *dims = c->dims;
     const uint8_t *only = c->only;
     uint8_t *flags = c->flags;
     FaceData q;
-    for (int64_t i = begin; i < end; i++) {
-        if (!c->valid[i]) continue;
-        const double *ql = c->lo + 3 * i, *qh = c->hi + 3 * i;
-        int64_t r[6];
-        cell_range(ql, qh, c->origin, c->cell, r);
-        int have = 0;
-        for (int64_t x = r[0]; x <= r[3]; x++)
-            for (int64_t y = r[1]; y <= r[4]; y++)
-                for (int64_t z = r[2]; z <= r[5]; z++) {
-                    int64_t at = (x * dims[1] + y) * dims[2] + z;
-                    if (!(c->hot[at >> 6] >> (at & 63) & 1)) continue;
-                    for (int32_t e = c->head[at]; e > 0; e = c->next[e - 1]) {
-                        const FaceData *p = c->mk + c->who[e - 1];
-                        if (p->face == i || (only[i] && i > p->face)) continue; /* a marked pair from its lower face */
-                        int64_t mx = p->c0[0] > r[0] ? p->c0[0] : r[0], my = p->c0[1] > r[1] ? p->c0[1] : r[1];
-                        int64_t mz = p->c0[2] > r[2] ? p->c0[2] : r[2];
-                        if (mx != x || my != y || mz != z) continue; /* the pair's own cell */
-                        const double *pb = p->box;
-                        if (!(pb[0] <= qh[0] && ql[0] <= pb[3] && pb[1] <= qh[1] && ql[1] <= pb[4] && pb[2] <= qh[2] &&
-                              ql[2] <= pb[5]))
-                            continue;
-                        /* nothing left to learn from this pair */
-                        if (FLAG_GET(flags + i) && FLAG_GET(flags + p->face)) continue;
-                        if (!have) {
-                            face_data(c->v, c->f, i, c->lo, c->hi, &q);
-                            have = 1;
-                        }
-                        const FaceData *a = i < p->face ? &q : p, *b = i < p->face ? p : &q;
-                        if (pair_intersects(a->corners, b->corners, a->ids, b->ids, a->normal, b->normal, a->box,
-                                            b->box, a->nlen, b->nlen)) {
-                            FLAG_SET(flags + i);
-                            FLAG_SET(flags + p->face);
-                        }
+    const double *ql = c->lo + 3 * i, *qh = c->hi + 3 * i;
+    int64_t r[6];
+    cell_range(ql, qh, c->origin, c->cell, r);
+    int have = 0;
+    for (int64_t x = r[0]; x <= r[3]; x++)
+        for (int64_t y = r[1]; y <= r[4]; y++)
+            for (int64_t z = r[2]; z <= r[5]; z++) {
+                int64_t at = (x * dims[1] + y) * dims[2] + z;
+                if (!(c->hot[at >> 6] >> (at & 63) & 1)) continue;
+                for (int32_t e = c->head[at]; e > 0; e = c->next[e - 1]) {
+                    const FaceData *p = c->mk + c->who[e - 1];
+                    if (p->face == i || (only[i] && i > p->face)) continue; /* a marked pair from its lower face */
+                    int64_t mx = p->c0[0] > r[0] ? p->c0[0] : r[0], my = p->c0[1] > r[1] ? p->c0[1] : r[1];
+                    int64_t mz = p->c0[2] > r[2] ? p->c0[2] : r[2];
+                    if (mx != x || my != y || mz != z) continue; /* the pair's own cell */
+                    const double *pb = p->box;
+                    if (!(pb[0] <= qh[0] && ql[0] <= pb[3] && pb[1] <= qh[1] && ql[1] <= pb[4] && pb[2] <= qh[2] &&
+                          ql[2] <= pb[5]))
+                        continue;
+                    /* nothing left to learn from this pair */
+                    if (FLAG_GET(flags + i) && FLAG_GET(flags + p->face)) continue;
+                    if (!have) {
+                        face_data(c->v, c->f, i, c->lo, c->hi, &q);
+                        have = 1;
+                    }
+                    const FaceData *a = i < p->face ? &q : p, *b = i < p->face ? p : &q;
+                    if (pair_intersects(a->corners, b->corners, a->ids, b->ids, a->normal, b->normal, a->box,
+                                        b->box, a->nlen, b->nlen)) {
+                        FLAG_SET(flags + i);
+                        FLAG_SET(flags + p->face);
                     }
                 }
-    }
+            }
+}
+
+static void marked_loop(void *ctx, int64_t begin, int64_t end, int worker) {
+    (void)worker;
+    const MarkedLoop *c = (const MarkedLoop *)ctx;
+    for (int64_t i = begin; i < end; i++)
+        if (c->valid[i]) marked_scan(c, i);
 }
 
 /* tw_crossings_marked(v, nv, f, nf, only, threads, flags) -> 0: decided, flags are exactly what
@@ -1212,7 +1247,7 @@ int tw_crossings_marked(const double *v, size_t nv_, const int32_t *f, size_t nf
     CheckFaces s = {v, f, valid, only, flags};
     double cell;
     int64_t dims[3];
-    int feasible = first_grid_feasible(&s, lo, hi, nf, n, ext, origin, top, &cell, dims, threads);
+    int feasible = first_grid_feasible(&s, lo, hi, nf, n, ext, origin, top, &cell, dims, threads, NULL);
     if (feasible < 0) status = -1;
     if (feasible <= 0) goto done;
     int64_t ncells = dims[0] * dims[1] * dims[2];
@@ -1677,7 +1712,8 @@ int tw_crossings_stars(const double *v, size_t nv_, const int32_t *f, size_t nf_
     if (!loop_runs) goto done;
     double fine_cell;
     int64_t fine_dims[3];
-    int feasible = first_grid_feasible(&s, NULL, NULL, nf, n, ext, origin, top, &fine_cell, fine_dims, threads);
+    int feasible = first_grid_feasible(&s, NULL, NULL, nf, n, ext, origin, top, &fine_cell, fine_dims, threads,
+                                       NULL);
     if (feasible < 0) status = -1;
     if (feasible <= 0) goto done;
     /* the parents around each vertex */
@@ -1847,5 +1883,583 @@ int tw_self_intersecting(const double *v, size_t nv, const int32_t *f, size_t nf
     }
     if (status != 0 && status != -1) status = tw_crossings_grid(v, nv, f, nf, only ? only : all, threads, flags);
     free(all);
+    return status;
+}
+
+/* ------------------------------------------------------------------------------------------------------------
+ * tw_check_state: `marked`'s work kept from one restore round's check to the next (filter.c's restore_crossings).
+ * Between two checks of one surface only the vertices put back move, so only the faces around them (`changed`)
+ * change their box; the rest of `marked` -- the valid faces' boxes, the first cell size, the dense count that
+ * proves that size feasible, and the lists of the faces per cell -- is the last check's. A call is decided by the
+ * same rule as tw_crossings_marked, and gives its flags, when the kept state is what a fresh pass would compute:
+ *
+ * - Boxes, validity: recomputed for the changed faces (the same face_box); their validity must not change.
+ * - The first cell size 2 median(extents): kept when every changed face's old and new extent both lie strictly
+ *   below the lower middle value L, or both strictly above the upper one U (the (n - 1) / 2-th and n / 2-th
+ *   smallest; one value for odd n): the values in [L, U] and the count below L are then unchanged, so are the
+ *   middle ranks. Only where first_cell() selected them by their bits (no NaN, no sign bit) and 2 median > 0.
+ * - origin and top (the boxes' corners, which fix the lattice's dims): kept when no changed face's old box
+ *   touched them (strictly inside) and its new box does not leave them.
+ * - The count: the changed faces' old cells taken out, all of them first, then their new cells added, so a cell
+ *   reaches 65536 only when its final count does; the entries and pairs are then exactly the fresh count's (sums
+ *   of integers), and the decision (feasible, else undecided) is first_grid_feasible's.
+ * - The pairs: `marked` has every valid face q scan the marked faces listed in q's cells. For a face whose box is
+ *   the seed's (not dirty), the same (q, marked p) tuples are enumerated from p: each cell of p's range lists the
+ *   faces whose seed box covers it (items), and the pair is taken in its own cell (the larger lower corner) as
+ *   there; dirty faces scan the marked faces' lists as in `marked`. The flags are an OR over the same tested
+ *   pairs, whatever the order (the skip of pairs whose faces are both flagged only skips pairs that add nothing).
+ *
+ * Anything else (a proof fails, other faces or sizes, too many dirty faces, no `changed`) computes the state
+ * afresh: the cost of tw_crossings_marked. The state never changes the answer, only the work.
+ * ------------------------------------------------------------------------------------------------------------ */
+struct tw_check_state {
+    const int32_t *f; /* the faces described (nf over nv vertices) */
+    size_t nf, nv;
+    int seeded;             /* 0: the next call computes afresh */
+    uint8_t *valid, *dirty; /* nf each; dirty: the face's box is not its seed box (it is not in `items`) */
+    double *lo, *hi, *ext;  /* nf * 3, nf * 3: the valid faces' boxes; ext: nf scratch (the selection's) */
+    int32_t *rng;           /* nf * 6: each valid face's cells on the lattice (lower x y z, upper x y z) */
+    int64_t n, ncells, ndirty, *dirty_list; /* n valid faces; dirty_list: nf / MARKED_SHARE + 1 */
+    double origin[3], top[3], cell, ranks[3];
+    int64_t dims[3], total;
+    long long pairs;
+    uint16_t *counts;           /* ncells: faces per cell (first_grid_feasible's dense count) */
+    int32_t *start, *items;     /* the valid faces per cell at the seed: items[start[c] .. start[c + 1]) */
+    int32_t *head, *next, *who; /* `marked`'s lists of the marked faces per cell (head 0 between calls) */
+    uint64_t *hot;
+    FaceData *mk;
+    int64_t list_cap, mk_cap;
+    /* the extents around the middle: every valid face's extent in [win_lo, win_hi], ascending (win_n of them),
+     * below: how many are < win_lo. win NULL: not kept (the cell size is then recomputed afresh). */
+    double *win, win_lo, win_hi;
+    int64_t win_n, win_cap, below;
+    int ext_fresh; /* ext holds the valid faces' extents (nothing moved since the seed) */
+};
+
+tw_check_state *tw_check_state_new(void) { return (tw_check_state *)calloc(1, sizeof(tw_check_state)); }
+
+void tw_check_state_free(tw_check_state *st) {
+    if (!st) return;
+    free(st->valid);
+    free(st->dirty);
+    free(st->lo);
+    free(st->hi);
+    free(st->ext);
+    free(st->rng);
+    free(st->dirty_list);
+    free(st->counts);
+    free(st->start);
+    free(st->items);
+    free(st->head);
+    free(st->next);
+    free(st->who);
+    free(st->hot);
+    free(st->mk);
+    free(st->win);
+    free(st);
+}
+
+/* The extent of box lo, hi as face_box computes it from the corners (the same comparisons on the same values). */
+static inline double box_extent(const double *lo, const double *hi) {
+    double x = 0;
+    for (int k = 0; k < 3; k++)
+        if (k == 0 || hi[k] - lo[k] > x) x = hi[k] - lo[k];
+    return x;
+}
+
+/* An extent radix_kth can order by its bits (+0, positive, +inf): first_cell's total order. */
+static inline int clean_extent(double x) {
+    uint64_t b;
+    memcpy(&b, &x, sizeof b);
+    return b <= 0x7ff0000000000000ull;
+}
+
+/* Take extent x out of (sign -1) or put it into (sign 1) the kept extents: 0, or -1 when it is not there / no
+ * memory (the window is then dropped). */
+static int window_move(tw_check_state *st, double x, int sign) {
+    if (x < st->win_lo) {
+        st->below += sign;
+        return 0;
+    }
+    if (x > st->win_hi) return 0;
+    int64_t a = 0, b = st->win_n; /* the first position whose value is >= x */
+    while (a < b) {
+        int64_t m = a + (b - a) / 2;
+        if (st->win[m] < x) a = m + 1;
+        else b = m;
+    }
+    if (sign < 0) {
+        if (a >= st->win_n || st->win[a] != x) return -1;
+        memmove(st->win + a, st->win + a + 1, sizeof(double) * (size_t)(st->win_n - a - 1));
+        st->win_n--;
+        return 0;
+    }
+    if (st->win_n == st->win_cap) {
+        double *w = (double *)realloc(st->win, sizeof(double) * (size_t)(2 * st->win_cap + 16));
+        if (!w) return -1;
+        st->win = w;
+        st->win_cap = 2 * st->win_cap + 16;
+    }
+    memmove(st->win + a + 1, st->win + a, sizeof(double) * (size_t)(st->win_n - a));
+    st->win[a] = x;
+    st->win_n++;
+    return 0;
+}
+
+/* first_cell's size from the kept extents (n of them): 1 and *cell, or 0 when a middle rank is not kept or the
+ * size would not be 2 median > 0 (computed afresh then). */
+static int window_cell(const tw_check_state *st, int64_t n, double *cell, double *ranks) {
+    int64_t a = (n - 1) / 2 - st->below, b = n / 2 - st->below;
+    if (!st->win || a < 0 || b >= st->win_n) return 0;
+    double lower = st->win[a], upper = st->win[b];
+    double median = n % 2 == 0 ? (lower + upper) / 2.0 : upper;
+    *cell = 2.0 * median;
+    ranks[0] = 1;
+    ranks[1] = lower;
+    ranks[2] = upper;
+    return *cell > 0;
+}
+
+/* The cells r (6) of box lo, hi on a lattice of the kept state's dims, into int32 (it has < 2^25 cells). */
+static inline void kept_range(const double *lo, const double *hi, const double *origin, double cell, int32_t *r) {
+    int64_t c[6];
+    cell_range(lo, hi, origin, cell, c);
+    for (int k = 0; k < 6; k++) r[k] = (int32_t)c[k];
+}
+
+/* Add (sign 1) or take out (sign -1) cells r (6) to the kept count: entries, pairs. 0, or 1 when a cell would
+ * reach 65536 faces (first_grid_feasible's limit). */
+static int kept_cells(tw_check_state *st, const int32_t *r, int sign) {
+    int64_t span = 1;
+    for (int k = 0; k < 3; k++) span *= (int64_t)r[3 + k] - r[k] + 1;
+    st->total += sign * span;
+    for (int64_t x = r[0]; x <= r[3]; x++)
+        for (int64_t y = r[1]; y <= r[4]; y++)
+            for (int64_t z = r[2]; z <= r[5]; z++) {
+                uint16_t *cnt = st->counts + (x * st->dims[1] + y) * st->dims[2] + z;
+                if (sign < 0) {
+                    st->pairs -= --*cnt;
+                } else {
+                    if (*cnt == UINT16_MAX) return 1;
+                    st->pairs += (*cnt)++;
+                }
+            }
+    return 0;
+}
+
+/* The extents' window keeps at least KEPT_MARGIN ranks each side of the middle ones, at most KEPT_WINDOW values */
+#define KEPT_MARGIN 64
+#define KEPT_WINDOW 8192
+
+/* The kept extents around the middle ranks, from st->ext[0..n) (the valid faces' extents as the seed computed
+ * them), when first_cell's size came from them by their bits (ranks[0] == 1): the values within a relative band
+ * around the upper middle value U, the band widened or narrowed until it holds the middle ranks with KEPT_MARGIN
+ * to spare and at most KEPT_WINDOW values (one pass per try). 0 (st->win NULL when none is found), -1 memory. */
+static int keep_window(tw_check_state *st) {
+    int64_t n = st->n, need_lo = (n - 1) / 2 - KEPT_MARGIN, need_hi = n / 2 + KEPT_MARGIN;
+    double U = st->ranks[2], eps = 1.0 / 256;
+    free(st->win);
+    st->win = NULL;
+    if (!(st->ranks[0] == 1) || n < 2 || !(U > 0)) return 0;
+    if (need_lo < 0) need_lo = 0;
+    if (need_hi > n - 1) need_hi = n - 1;
+    for (int tries = 0; tries < 12; tries++) {
+        double lo = U - U * eps, hi = U + U * eps;
+        int64_t below = 0, m = 0;
+        for (int64_t i = 0; i < n; i++) {
+            below += st->ext[i] < lo;
+            m += st->ext[i] >= lo && st->ext[i] <= hi;
+        }
+        if (m > KEPT_WINDOW) {
+            eps /= 4;
+            continue;
+        }
+        if (below > need_lo || below + m <= need_hi) {
+            eps *= 4;
+            continue;
+        }
+        st->win = (double *)malloc(sizeof(double) * (size_t)(2 * m + 16));
+        if (!st->win) return -1;
+        st->win_cap = 2 * m + 16;
+        st->win_n = 0;
+        for (int64_t i = 0; i < n; i++)
+            if (st->ext[i] >= lo && st->ext[i] <= hi) st->win[st->win_n++] = st->ext[i];
+        qsort(st->win, (size_t)st->win_n, sizeof(double), cmp_double);
+        st->win_lo = lo;
+        st->win_hi = hi;
+        st->below = below;
+        return 0;
+    }
+    return 0;
+}
+
+/* The kept state moved to the current positions of the changed faces (changed: nf bytes). 1 done (kept), 0
+ * compute afresh (a proof failed; the state may be half moved), 2 a cell of 65536 faces (undecided; the state is
+ * dropped), -1 out of memory. */
+static int kept_update(tw_check_state *st, const double *v, const int32_t *f, const uint8_t *changed) {
+    int64_t nf = (int64_t)st->nf, m = 0, cap = nf / MARKED_SHARE + 1;
+    for (int64_t i = 0; i < nf; i++) m += changed[i] != 0;
+    if (m == 0) return 1;
+    if (!st->win && st->ext_fresh && keep_window(st) < 0) return -1;
+    st->ext_fresh = 0;
+    if (!st->win) return 0;
+    if (st->ndirty + m > cap) return 0; /* a long dirty list: cheaper afresh */
+    /* the faces whose cells change: the changed ones, and others where the lattice moves (at most cap) */
+    int64_t *list = (int64_t *)malloc(sizeof(int64_t) * (size_t)m);
+    int64_t *moved = (int64_t *)malloc(sizeof(int64_t) * (size_t)cap);
+    double *box = (double *)malloc(sizeof(double) * 6 * (size_t)m);
+    int32_t *cells = (int32_t *)malloc(sizeof(int32_t) * 6 * (size_t)cap);
+    int status = 1;
+    if (!list || !moved || !box || !cells) {
+        status = -1;
+        goto out;
+    }
+    /* the changed faces' new boxes: validity kept, extents orderable, corners strictly inside the last ones */
+    int64_t nc = 0;
+    for (int64_t i = 0; i < nf && status == 1; i++) {
+        if (!changed[i]) continue;
+        const double *p0 = v + 3 * f[3 * i], *p1 = v + 3 * f[3 * i + 1], *p2 = v + 3 * f[3 * i + 2];
+        double e1[3], e2[3], x[3], *b = box + 6 * nc;
+        sub3(p1, p0, e1);
+        sub3(p2, p0, e2);
+        cross3(e1, e2, x);
+        int now = dot3(x, x) > 0;
+        if (now != st->valid[i]) status = 0;
+        if (!now || status != 1) continue;
+        double e_new = face_box(p0, p1, p2, b, b + 3);
+        const double *ol = st->lo + 3 * i, *oh = st->hi + 3 * i;
+        if (!clean_extent(e_new)) status = 0;
+        for (int k = 0; k < 3; k++)
+            if (!(ol[k] > st->origin[k] && oh[k] < st->top[k] && b[k] > st->origin[k] && b[3 + k] < st->top[k]))
+                status = 0;
+        list[nc++] = i;
+    }
+    if (status != 1) goto out;
+    /* the first cell size from the kept extents */
+    for (int64_t j = 0; j < nc && status == 1; j++) {
+        int64_t i = list[j];
+        if (window_move(st, box_extent(st->lo + 3 * i, st->hi + 3 * i), -1) ||
+            window_move(st, box_extent(box + 6 * j, box + 6 * j + 3), 1))
+            status = 0;
+    }
+    double cell, ranks[3];
+    if (status != 1 || !window_cell(st, st->n, &cell, ranks)) {
+        free(st->win); /* the kept extents are no longer the faces' */
+        st->win = NULL;
+        status = 0;
+        goto out;
+    }
+    int64_t dims[3];
+    for (int k = 0; k < 3; k++) { /* first_grid_feasible's dims; origin and top are kept (see above) */
+        double q = (st->top[k] - st->origin[k]) / cell;
+        if (!(q < 1e9)) status = 0;
+        dims[k] = status ? (int64_t)q + 1 : 0;
+        if (dims[k] != st->dims[k]) status = 0;
+    }
+    if (status != 1) goto out;
+    /* the faces whose cells change, with their new cells */
+    int64_t nl = 0;
+    if (cell == st->cell) {
+        for (int64_t j = 0; j < nc; j++) {
+            kept_range(box + 6 * j, box + 6 * j + 3, st->origin, cell, cells + 6 * j);
+            moved[j] = list[j];
+        }
+        nl = nc;
+    } else {
+        int32_t r[6];
+        for (int64_t i = 0, j = 0; i < nf && status == 1; i++) {
+            if (!st->valid[i]) continue;
+            int now = j < nc && list[j] == i;
+            const double *b = now ? box + 6 * j : NULL;
+            if (now) j++;
+            kept_range(b ? b : st->lo + 3 * i, b ? b + 3 : st->hi + 3 * i, st->origin, cell, r);
+            if (!now && !memcmp(r, st->rng + 6 * i, sizeof r)) continue;
+            if (st->ndirty + nl + 1 > cap) {
+                status = 0;
+                break;
+            }
+            memcpy(cells + 6 * nl, r, sizeof r);
+            moved[nl++] = i;
+        }
+        if (status != 1) goto out;
+    }
+    /* the count moved: every old cell out, then every new cell in */
+    int over = 0;
+    for (int64_t j = 0; j < nl; j++) kept_cells(st, st->rng + 6 * moved[j], -1);
+    for (int64_t j = 0; j < nl && !over; j++) over = kept_cells(st, cells + 6 * j, 1);
+    if (over) {
+        st->seeded = 0;
+        status = 2;
+        goto out;
+    }
+    for (int64_t j = 0, c = 0; j < nl; j++) {
+        int64_t i = moved[j];
+        memcpy(st->rng + 6 * i, cells + 6 * j, 6 * sizeof(int32_t));
+        if (changed[i]) { /* the valid changed faces, in face order in both moved and box */
+            memcpy(st->lo + 3 * i, box + 6 * c, 3 * sizeof(double));
+            memcpy(st->hi + 3 * i, box + 6 * c + 3, 3 * sizeof(double));
+            c++;
+        }
+        if (!st->dirty[i]) {
+            st->dirty[i] = 1;
+            st->dirty_list[st->ndirty++] = i;
+        }
+    }
+    st->cell = cell;
+    memcpy(st->ranks, ranks, sizeof ranks);
+out:
+    free(list);
+    free(moved);
+    free(box);
+    free(cells);
+    return status;
+}
+
+/* The kept state computed afresh (tw_crossings_marked's first pass and count, the count and boxes kept, the
+ * lists of faces per cell built): 1 seeded (feasible), 0 decided without a pair (fewer than 2 valid faces), 2
+ * undecided (not seeded), -1 out of memory. */
+static int kept_seed(tw_check_state *st, const double *v, size_t nv, const int32_t *f, size_t nf_,
+                     const uint8_t *only, int threads) {
+    int64_t nf = (int64_t)nf_;
+    size_t cap = (size_t)(nf > 0 ? nf : 1);
+    st->seeded = 0;
+    if (st->nf != nf_ || !st->valid) { /* the per-face arrays: all of them, or none (valid NULL) */
+        free(st->valid);
+        free(st->dirty);
+        free(st->lo);
+        free(st->hi);
+        free(st->ext);
+        free(st->rng);
+        free(st->dirty_list);
+        st->rng = (int32_t *)malloc(sizeof(int32_t) * 6 * cap);
+        st->valid = (uint8_t *)malloc(cap);
+        st->dirty = (uint8_t *)malloc(cap);
+        st->lo = (double *)malloc(sizeof(double) * 3 * cap);
+        st->hi = (double *)malloc(sizeof(double) * 3 * cap);
+        st->ext = (double *)malloc(sizeof(double) * cap);
+        st->dirty_list = (int64_t *)malloc(sizeof(int64_t) * (cap / MARKED_SHARE + 1));
+        st->nf = nf_;
+        if (!st->valid || !st->dirty || !st->lo || !st->hi || !st->ext || !st->rng || !st->dirty_list) {
+            free(st->valid);
+            st->valid = NULL;
+            return -1;
+        }
+    }
+    st->f = f;
+    st->nv = nv;
+    st->ndirty = 0;
+    memset(st->dirty, 0, cap);
+    free(st->counts);
+    st->counts = NULL;
+    int pass_workers = workers_for(threads, nf, PASS_CHUNK);
+    int64_t chunk = block_chunk(nf, pass_workers), k_marked = 0;
+    BlockSum *sums = (BlockSum *)calloc((size_t)pass_workers, sizeof(BlockSum));
+    if (!sums) return -1;
+    MarkedPass pass = {.v = v, .f = f, .only = only, .valid = st->valid, .lo = st->lo, .hi = st->hi, .ext = st->ext,
+                       .chunk = chunk, .sums = sums};
+    parallel_for(pass_workers, nf, chunk, marked_pass, &pass);
+    st->n = merge_blocks(sums, nf > 0 ? (nf + chunk - 1) / chunk : 0, chunk, st->ext, st->origin, st->top, &k_marked);
+    free(sums);
+    if (nf < 2 || st->n < 2) return 0;
+    CheckFaces s = {v, f, st->valid, only, NULL};
+    GridKeep keep = {{0, 0, 0}, NULL, st->rng, 0, 0};
+    int feasible = first_grid_feasible(&s, st->lo, st->hi, nf, st->n, st->ext, st->origin, st->top, &st->cell,
+                                       st->dims, threads, &keep);
+    if (feasible <= 0) return feasible < 0 ? -1 : 2;
+    memcpy(st->ranks, keep.ranks, sizeof st->ranks);
+    st->counts = keep.counts;
+    st->total = keep.total;
+    st->pairs = keep.pairs;
+    int64_t ncells = st->dims[0] * st->dims[1] * st->dims[2];
+    if (ncells != st->ncells || !st->head || !st->hot) { /* head and hot: 0 between calls */
+        free(st->start);
+        free(st->head);
+        free(st->hot);
+        st->start = NULL;
+        st->head = (int32_t *)calloc((size_t)ncells, sizeof(int32_t));
+        st->hot = (uint64_t *)calloc((size_t)(ncells / 64 + 1), sizeof(uint64_t));
+        st->ncells = ncells;
+        if (!st->head || !st->hot) return -1;
+    }
+    /* the lists of faces per cell and the extents' window wait for the next call: one check alone needs neither */
+    free(st->items);
+    st->items = NULL;
+    free(st->win);
+    st->win = NULL;
+    st->ext_fresh = 1;
+    st->seeded = 1;
+    return 1;
+}
+
+/* The lists of the valid faces per cell (items, start) from the kept count and cells, every face clean: 0, or -1
+ * out of memory (the lists are then not there). */
+static int kept_lists(tw_check_state *st) {
+    int64_t nf = (int64_t)st->nf, ncells = st->ncells;
+    free(st->items);
+    free(st->start);
+    st->items = NULL;
+    st->start = (int32_t *)malloc(sizeof(int32_t) * (size_t)(ncells + 1));
+    if (st->start) st->items = (int32_t *)malloc(sizeof(int32_t) * (size_t)(st->total > 0 ? st->total : 1));
+    if (!st->items) return -1;
+    int32_t *start = st->start;
+    start[0] = 0;
+    for (int64_t c = 0; c < ncells; c++) start[c + 1] = start[c] + st->counts[c];
+    /* fill in face order, with start[c] as the cursor of cell c, then shift back */
+    for (int64_t i = 0; i < nf; i++) {
+        if (!st->valid[i]) continue;
+        const int32_t *c = st->rng + 6 * i;
+        for (int64_t x = c[0]; x <= c[3]; x++)
+            for (int64_t y = c[1]; y <= c[4]; y++)
+                for (int64_t z = c[2]; z <= c[5]; z++) st->items[start[(x * st->dims[1] + y) * st->dims[2] + z]++] =
+                    (int32_t)i;
+    }
+    for (int64_t c = ncells; c > 0; c--) start[c] = start[c - 1];
+    start[0] = 0;
+    for (int64_t j = 0; j < st->ndirty; j++) st->dirty[st->dirty_list[j]] = 0;
+    st->ndirty = 0;
+    return 0;
+}
+
+/* `marked`'s pairs from the kept state (see above): 0, or -1 out of memory. */
+static int kept_pairs(tw_check_state *st, const double *v, const int32_t *f, const uint8_t *only, int threads,
+                      uint8_t *flags) {
+    int64_t nf = (int64_t)st->nf, m = 0, t = 0;
+    const int64_t *dims = st->dims;
+    for (int64_t i = 0; i < nf; i++) m += st->valid[i] && only[i];
+    if (m == 0) return 0;
+    if (m > st->mk_cap) {
+        FaceData *mk = (FaceData *)realloc(st->mk, sizeof(FaceData) * (size_t)m);
+        if (!mk) return -1;
+        st->mk = mk;
+        st->mk_cap = m;
+    }
+    m = 0;
+    for (int64_t i = 0; i < nf; i++) {
+        if (!st->valid[i] || !only[i]) continue;
+        FaceData *d = st->mk + m++;
+        const int32_t *c = st->rng + 6 * i;
+        face_data(v, f, i, st->lo, st->hi, d);
+        int64_t span = 1;
+        for (int k = 0; k < 3; k++) {
+            d->c0[k] = c[k];
+            d->c1[k] = c[3 + k];
+            span *= (int64_t)c[3 + k] - c[k] + 1;
+        }
+        t += span;
+    }
+    /* faces with their seed box: from the marked faces' cells */
+    FaceData q;
+    for (int64_t j = 0; j < m && st->items; j++) {
+        const FaceData *p = st->mk + j;
+        const double *pb = p->box;
+        for (int64_t x = p->c0[0]; x <= p->c1[0]; x++)
+            for (int64_t y = p->c0[1]; y <= p->c1[1]; y++)
+                for (int64_t z = p->c0[2]; z <= p->c1[2]; z++) {
+                    int64_t at = (x * dims[1] + y) * dims[2] + z;
+                    for (int32_t e = st->start[at]; e < st->start[at + 1]; e++) {
+                        int64_t i = st->items[e];
+                        if (st->dirty[i] || i == p->face || (only[i] && i > p->face)) continue;
+                        const double *ql = st->lo + 3 * i, *qh = st->hi + 3 * i;
+                        const int32_t *r = st->rng + 6 * i;
+                        int64_t mx = p->c0[0] > r[0] ? p->c0[0] : r[0], my = p->c0[1] > r[1] ? p->c0[1] : r[1];
+                        int64_t mz = p->c0[2] > r[2] ? p->c0[2] : r[2];
+                        if (mx != x || my != y || mz != z) continue; /* the pair's own cell */
+                        if (!(pb[0] <= qh[0] && ql[0] <= pb[3] && pb[1] <= qh[1] && ql[1] <= pb[4] && pb[2] <= qh[2] &&
+                              ql[2] <= pb[5]))
+                            continue;
+                        if (flags[i] && flags[p->face]) continue;
+                        face_data(v, f, i, st->lo, st->hi, &q);
+                        const FaceData *a = i < p->face ? &q : p, *b = i < p->face ? p : &q;
+                        if (pair_intersects(a->corners, b->corners, a->ids, b->ids, a->normal, b->normal, a->box,
+                                            b->box, a->nlen, b->nlen))
+                            flags[i] = flags[p->face] = 1;
+                    }
+                }
+    }
+    if (st->items && st->ndirty == 0) return 0;
+    /* dirty faces (no lists of faces: every face): `marked`'s scan of the marked faces' lists */
+    if (t > st->list_cap) {
+        int32_t *nn = (int32_t *)realloc(st->next, sizeof(int32_t) * (size_t)t);
+        if (nn) st->next = nn;
+        int32_t *nw = (int32_t *)realloc(st->who, sizeof(int32_t) * (size_t)t);
+        if (nw) st->who = nw;
+        if (!nn || !nw) return -1;
+        st->list_cap = t;
+    }
+    t = 0;
+    for (int64_t j = 0; j < m; j++) {
+        const FaceData *p = st->mk + j;
+        for (int64_t x = p->c0[0]; x <= p->c1[0]; x++)
+            for (int64_t y = p->c0[1]; y <= p->c1[1]; y++)
+                for (int64_t z = p->c0[2]; z <= p->c1[2]; z++) {
+                    int64_t at = (x * dims[1] + y) * dims[2] + z;
+                    st->hot[at >> 6] |= (uint64_t)1 << (at & 63);
+                    st->who[t] = (int32_t)j;
+                    st->next[t] = st->head[at];
+                    st->head[at] = (int32_t)(++t);
+                }
+    }
+    MarkedLoop loop = {.v = v, .lo = st->lo, .hi = st->hi, .origin = st->origin, .f = f, .dims = dims,
+                       .valid = st->valid, .only = only, .flags = flags, .hot = st->hot, .head = st->head,
+                       .next = st->next, .who = st->who, .mk = st->mk, .cell = st->cell};
+    if (!st->items)
+        parallel_for(workers_for(threads, nf, PASS_CHUNK), nf, PASS_CHUNK, marked_loop, &loop);
+    for (int64_t j = 0; j < st->ndirty && st->items; j++)
+        if (st->valid[st->dirty_list[j]]) marked_scan(&loop, st->dirty_list[j]);
+    for (int64_t j = 0; j < m; j++) { /* head and hot back to 0 */
+        const FaceData *p = st->mk + j;
+        for (int64_t x = p->c0[0]; x <= p->c1[0]; x++)
+            for (int64_t y = p->c0[1]; y <= p->c1[1]; y++)
+                for (int64_t z = p->c0[2]; z <= p->c1[2]; z++) {
+                    int64_t at = (x * dims[1] + y) * dims[2] + z;
+                    st->head[at] = 0;
+                    st->hot[at >> 6] = 0;
+                }
+    }
+    return 0;
+}
+
+/* tw_crossings_marked through the kept state: the same status and flags. changed: NULL (compute afresh) or nf
+ * bytes, nonzero for each face with a vertex moved since the last call with this state. */
+static int kept_marked(tw_check_state *st, const double *v, size_t nv, const int32_t *f, size_t nf,
+                       const uint8_t *only, const uint8_t *changed, int threads, uint8_t *flags) {
+    memset(flags, 0, nf);
+    int status = 0;
+    if (st->seeded && st->f == f && st->nf == nf && st->nv == nv && changed)
+        status = kept_update(st, v, f, changed);
+    if (status == 2 || status < 0) return status;
+    if (status == 0) {
+        status = kept_seed(st, v, nv, f, nf, only, threads);
+        if (status != 1) return status;
+    } else {
+        double limit = 64.0 * (double)st->n + 1000000.0;
+        if (!((double)st->total <= limit && st->pairs <= MAX_CANDIDATE_PAIRS)) return 2; /* kept, undecided */
+        /* a second check: the lists of faces per cell pay from now on (beyond int32 entries: every face scans) */
+        if (!st->items && st->total < INT32_MAX && kept_lists(st) < 0) return -1;
+    }
+    int r = kept_pairs(st, v, f, only, threads, flags);
+    if (r < 0) memset(flags, 0, nf);
+    return r;
+}
+
+/* tw_self_intersecting, the checks that mark few faces through the kept state `st` (tw_check_state_new; NULL:
+ * tw_self_intersecting itself): the same status and flags. changed: NULL, or nf bytes, nonzero for each face with
+ * a vertex moved since the last call with `st` (the faces, nf and nv the same as then; otherwise the state is
+ * computed afresh). A call that does not go through the state drops it. */
+int tw_self_intersecting_kept(tw_check_state *st, const double *v, size_t nv, const int32_t *f, size_t nf,
+                              const uint8_t *only, const uint8_t *changed, int children, int threads,
+                              uint8_t *flags) {
+    if (!st) return tw_self_intersecting(v, nv, f, nf, only, children, threads, flags);
+    size_t marked = 0;
+    if (only)
+        for (size_t i = 0; i < nf; i++) marked += only[i] != 0;
+    if (!only || MARKED_SHARE * marked > nf) {
+        st->seeded = 0;
+        return tw_self_intersecting(v, nv, f, nf, only, children, threads, flags);
+    }
+    for (size_t i = 0; i < 3 * nf; i++)
+        if (f[i] < 0 || (size_t)f[i] >= nv) return -2;
+    int status = kept_marked(st, v, nv, f, nf, only, changed, threads, flags);
+    if (status != 0 && status != -1) status = tw_crossings_grid(v, nv, f, nf, only, threads, flags);
     return status;
 }

@@ -6,7 +6,7 @@
 double tw_test_first_cell(const double *ext, int64_t n) {
     double *scratch = (double *)malloc(sizeof(double) * (size_t)(n > 0 ? n : 1));
     if (!scratch) return -1.0;
-    double cell = first_cell(ext, scratch, n);
+    double cell = first_cell(ext, scratch, n, NULL);
     free(scratch);
     return cell;
 }
