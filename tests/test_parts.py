@@ -246,3 +246,40 @@ def test_encode_of_boxes_through_boxes_is_as_good_as_their_union():
     assert m["chamfer"] <= 1.25 * c["chamfer"]
     assert m["unseen"] <= 0.01 and m["closed"]
     assert abs(m["nc"] - c["nc"]) <= 0.01
+
+
+def _shell(radius, inward=False, centre=(0.0, 0.0, 0.0)):
+    v, f = ball(radius, centre)
+    return v, (f[:, ::-1] if inward else f)
+
+
+def test_outer_shells_drop_sealed_cavities_and_what_lies_in_them():
+    from tetweave_codec.fit.parts import outer_shells
+
+    # a hollow ball (outer shell + inward cavity shell) with a ball floating in the cavity, and a ball beside it
+    v, f = scenes.join(_shell(0.8), _shell(0.6, inward=True), _shell(0.3), _shell(0.2, centre=(1.5, 0.0, 0.0)))
+    keep = outer_shells(v, f)
+    sizes = [len(ball()[1])] * 4
+    expect = np.repeat([True, False, False, True], sizes)
+    assert np.array_equal(keep, expect)
+    assert outer_shells(*_shell(0.5)).all()
+
+
+@pytest.mark.parametrize("name", ["gearbox", "bolted", "booleans", "enclosure"])
+def test_welded_cad_assemblies_are_closed_parts_and_their_union_is_the_kernels(name):
+    """The CAD assemblies of benchmarks/assets exported as one welded mesh (parts sharing edges, coincident contact
+    faces, sealed clearances): every part is a closed part, and the exact union with its cavities dropped is the
+    CAD kernel's own fused outer shell, measured by the independent judge (benchmarks/assets/judge.py)."""
+    from tetweave_codec.benchmarks import assets
+    from tetweave_codec.benchmarks.assets import judge
+
+    asset = assets.load(name)
+    v, f = asset.parts.welded()
+    n, scale, offset = normalize(v)
+    p = split_parts(n, f)
+    assert len(p.closed) == p.count and not p.rest.any()
+    choice = choose_surface(n, f, "auto")
+    assert choice.mode == "visible" and "the exact union of" in choice.reason
+    target = (choice.surface.vertices * scale + offset, choice.surface.faces)
+    assert closed_and_oriented(*target)
+    assert judge.chamfer(judge.truth_of(asset), *target)["chamfer"] < 2e-5  # the judge's floor is ~3e-6

@@ -34,6 +34,8 @@ from tetweave_codec.geometry.triangles import face_areas
 # vertices 1e-6 of the box off the input's: far below any quantization step).
 TOUCH_OFFSET = 1e-6
 CONTACT_AREA_SHARE = 1e-4
+# Faces around a shared edge whose angles about it differ by less than this (radians) are coincident (`_wedge_pairs`).
+ANGLE_TIE = 1e-9
 # A closed part with |volume| below this share of its bounding box's volume is flat (two coincident sheets): not a
 # solid, left to the renders.
 MIN_VOLUME_SHARE = 1e-9
@@ -143,8 +145,12 @@ def _wedge_pairs(
     ref = w[first] / np.maximum(np.linalg.norm(w[first], axis=1, keepdims=True), 1e-300)
     other = np.cross(axis, ref)
     angle = np.arctan2(np.einsum("ij,ij->i", w, other), np.einsum("ij,ij->i", w, ref))
+    # coincident faces (a lid on a housing's rim, a cube on a cube) lie at one angle up to rounding: equal angles
+    # within ANGLE_TIE (and -pi with pi), and at a tie the face that closes a wedge before the one that opens the
+    # next, as solids that touch there without overlapping have them
+    angle = np.round(np.where(angle < -np.pi + ANGLE_TIE, np.pi, angle) / ANGLE_TIE)
     along = t == lo
-    order = np.lexsort((angle, group))
+    order = np.lexsort((~along, angle, group))
     g, al = group[order], along[order]
     nxt = offsets[g] + (pos + 1) % size[g]
     opener = ~al
@@ -301,8 +307,10 @@ def closed_union(vertices: np.ndarray, faces: np.ndarray, parts: Parts) -> Union
             mesh = moved.to_mesh64()
     uv = np.array(mesh.vert_properties, dtype=np.float64)[:, :3]
     uf = np.array(mesh.tri_verts, dtype=np.int64).reshape(-1, 3)
-    # an output triangle is an input face kept whole when its corners are that face's corners (in its turn)
     face_id = np.asarray(mesh.face_id, dtype=np.int64)
+    outer = outer_shells(uv, uf)
+    uf, face_id = uf[outer], face_id[outer]
+    # an output triangle is an input face kept whole when its corners are that face's corners (in its turn)
     ok = (face_id >= 0) & (face_id < len(f))
     fid = np.where(ok, face_id, 0)
     original = f[fid]
@@ -342,6 +350,56 @@ def closed_union(vertices: np.ndarray, faces: np.ndarray, parts: Parts) -> Union
     out_f = np.concatenate([kept_faces, cut])
     kept = np.concatenate([whole, np.full(len(cut), -1, dtype=np.int64)])
     return Union(out_v, out_f, kept, float(face_areas(out_v, out_f).sum()), parts_area)
+
+
+def outer_shells(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """bool (F,): the faces of the outer shells of a closed, outward-oriented solid (vertices (V,3), faces (F,3)
+    into them, e.g. a union): a sealed cavity (the clearance around a bolt between its head and its nut, the air
+    inside a closed housing) is bounded by a shell of negative volume, and whatever lies in a cavity by a shell
+    inside another; no outside view sees either, so both go. A shell is a connected component (across edges); one
+    of positive volume is outer when a vertex of it has winding number 0 with respect to the other positive shells
+    (solid angles summed over their faces, exact to rounding; the shells of a union do not overlap)."""
+    n = len(faces)
+    if not n:
+        return np.zeros(0, dtype=bool)
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    edges = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
+    _, edge_id = np.unique(edges, axis=0, return_inverse=True)
+    edge_id = edge_id.reshape(-1)
+    rows = np.tile(np.arange(n), 3)
+    size = n + int(edge_id.max()) + 1
+    graph = coo_matrix((np.ones(len(rows), dtype=np.int8), (rows, n + edge_id)), shape=(size, size))
+    _, labels = connected_components(graph, directed=False)
+    shell = np.unique(labels[:n], return_inverse=True)[1].reshape(-1)
+    count = int(shell.max()) + 1
+    if count == 1:
+        return np.ones(n, dtype=bool)
+    a, b, c = (vertices[faces[:, k]] for k in range(3))
+    volume = np.bincount(shell, weights=np.einsum("ij,ij->i", a, np.cross(b, c)), minlength=count)
+    keep = volume > 0
+    solid = np.flatnonzero(keep)
+    if len(solid) > 1:
+        first = np.unique(shell, return_index=True)[1]  # each shell's first face
+        probe = vertices[faces[first[solid], 0]]
+        inside = keep[shell]
+        for k, s in enumerate(solid):
+            others = inside & (shell != s)
+            if _winding_number(probe[k], a[others], b[others], c[others]) > 0.5:
+                keep[s] = False
+    return keep[shell]
+
+
+def _winding_number(point: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> float:
+    """Winding number of closed, outward triangles (corners a, b, c (F,3)) at `point` (3,): their solid angles (Van
+    Oosterom and Strackee) over 4 pi."""
+    x, y, z = a - point, b - point, c - point
+    lx, ly, lz = (np.linalg.norm(u, axis=1) for u in (x, y, z))
+    det = np.einsum("ij,ij->i", x, np.cross(y, z))
+    den = lx * ly * lz + np.einsum("ij,ij->i", x, y) * lz + np.einsum("ij,ij->i", y, z) * lx
+    den += np.einsum("ij,ij->i", z, x) * ly
+    return float(2.0 * np.arctan2(det, den).sum() / (4.0 * np.pi))
 
 
 def thin_slab(vertices: np.ndarray, faces: np.ndarray, thickness: float) -> tuple[np.ndarray, np.ndarray]:
