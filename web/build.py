@@ -33,9 +33,10 @@ FLAGS = [
     "-target",
     "wasm32-wasi",
     "-mexec-model=reactor",  # no _start/main: JavaScript calls the exports (after _initialize)
-    # -Os: 115.8 KB, 52.7 KB gzipped; -O2: 151.5 KB, 63.8 KB gzipped (over the 60 KB the module and its JS may
-    # take gzipped together) for decodes 5-15 % faster in node 20 (best of 7: spot 5 KB 24 vs 28 ms, spot 40 KB
-    # 202 vs 214 ms, bunny 40 KB 391 vs 434 ms); -O3 is -O2's size, -Oz gives -Os's bytes.
+    # -Os: the 60 KB gzipped that the module and its JS may take together. Measured on the core of e0ad368:
+    # -Os 115.8 KB, 52.7 KB gzipped; -O2 151.5 KB, 63.8 KB gzipped, decoding 5-15 % faster in node 20 (best of 7:
+    # spot 5 KB 24 vs 28 ms, spot 40 KB 202 vs 214 ms, bunny 40 KB 391 vs 434 ms); -O3 is -O2's size, -Oz gives
+    # -Os's bytes, -flto saves 1 KB gzipped.
     "-Os",
     "-std=c99",
     "-ffp-contract=off",
