@@ -10,6 +10,7 @@ import pytest
 
 from tetweave_codec.benchmarks import fuzz
 from tetweave_codec.decoder import decode_detailed
+from tetweave_codec.errors import ContainerError
 from tetweave_codec.geometry.delaunay import available_backends
 
 
@@ -137,9 +138,16 @@ def _encoded(path: str, size: int) -> bytes:
 @pytest.mark.slow
 @pytest.mark.parametrize("backend", available_backends())
 def test_real_files_decode_to_closed_manifolds_with_both_backends(shared_meshes, backend):
+    """The encoder's files (the exact Delaunay) decode to closed 2-manifolds with it; forced through another
+    backend (`tetweave decode --delaunay`), other tets give another surface, which is either closed too or one
+    ContainerError naming the crossing faces the decoder's check found (never a surface that crosses itself)."""
     for name, size in [(name, size) for name in ("spot", "fandisk") for size in (5 * 1024, 20 * 1024)]:
         data = _encoded(str(shared_meshes / f"{name}.ply"), size)
-        result = decode_detailed(data, backend)
+        try:
+            result = decode_detailed(data, backend)
+        except ContainerError as exc:
+            assert backend != "exact" and "cross or touch" in str(exc), (name, size, backend)
+            continue
         assert result.backend == backend
         assert len(result.faces) > 1000, (name, size)
         outcome, detail = fuzz.classify_result(result)
