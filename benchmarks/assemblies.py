@@ -32,7 +32,10 @@ COLUMNS = ("asset", "size", "form", "bytes", "surface", "choose_s", "encode_s", 
            "clean_chamfer", "ratio", "hidden_pct", "closed", "floor", "faces_in", "reason")  # fmt: skip
 
 
-def parse_size(text: str) -> int:
+def parse_size(text: str) -> int | None:
+    """Bytes of a --size value (k = 1024); None for "default" (no rate option: the fit sized from the input)."""
+    if text == "default":
+        return None
     return int(float(text[:-1]) * 1024) if text.endswith("k") else int(text)
 
 
@@ -47,7 +50,7 @@ def form_mesh(asset, form: str):
     raise ValueError(f"unknown form {form!r}")
 
 
-def run_one(asset, truth, form: str, size: int, threads: int) -> dict:
+def run_one(asset, truth, form: str, size: int | None, threads: int) -> dict:
     """One encode of one form at one size, judged (module docstring)."""
     from tetweave_codec.benchmarks.assets import judge
     from tetweave_codec.encoder import encode
@@ -56,7 +59,8 @@ def run_one(asset, truth, form: str, size: int, threads: int) -> dict:
     from tetweave_codec.options import EncodeOptions
 
     v, f = form_mesh(asset, form)
-    row = {"asset": asset.name, "size": f"{size // 1024}k", "form": form, "faces_in": len(f)}
+    label = "default" if size is None else f"{size // 1024}k"
+    row = {"asset": asset.name, "size": label, "form": form, "faces_in": len(f)}
     t0 = time.perf_counter()
     choice = choose_surface(normalize(v)[0], f, "auto")
     row["choose_s"] = time.perf_counter() - t0
@@ -99,7 +103,7 @@ def main() -> None:
                                  formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
     ap.add_argument("--assets", default=",".join(NAMES))
     ap.add_argument("--forms", default=",".join(FORMS), help="comma-separated of clean, welded, separate")
-    ap.add_argument("--sizes", default="5k", help="comma-separated --size values (k = 1024)")
+    ap.add_argument("--sizes", default="5k", help="comma-separated --size values (k = 1024) or default")
     ap.add_argument("--threads", type=int, default=1, help="torch threads of the encodes")
     ap.add_argument("--csv", type=Path, default=None, help="write the rows here (each row as it is done)")
     args = ap.parse_args()
