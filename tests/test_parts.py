@@ -283,3 +283,21 @@ def test_welded_cad_assemblies_are_closed_parts_and_their_union_is_the_kernels(n
     target = (choice.surface.vertices * scale + offset, choice.surface.faces)
     assert closed_and_oriented(*target)
     assert judge.chamfer(judge.truth_of(asset), *target)["chamfer"] < 2e-5  # the judge's floor is ~3e-6
+
+
+def test_hostile_part_configurations_choose_quickly():
+    """Issue 59's bad inputs, as auto sees them: two identical parts on top of each other (one part, the copy's
+    faces duplicates: their union), parts nested ten deep (the outer box), a part inside out inside another (the
+    outer one): closed surfaces at once, no renders."""
+    twins = scenes.join(box(), box())
+    nested = scenes.join(*[box((1.0 + 0.1 * k,) * 3) for k in range(10)])
+    inner = box((0.5, 0.5, 0.5))
+    inside_out = scenes.join(box(), (inner[0], inner[1][:, ::-1]))
+    for messy, parts, kept in ((twins, 1, 12), (nested, 10, 12), (inside_out, 2, 12)):
+        p = split_parts(*messy)
+        assert len(p.closed) == parts and not p.rest.any()
+        choice, surface = auto(messy)
+        assert choice.mode == "visible" and f"the exact union of {parts} closed part" in choice.reason
+        assert len(surface[1]) == kept and closed_and_oriented(*surface)
+    p = split_parts(*twins)
+    assert p.duplicate.sum() == 12 and p.duplicate[12:].all()

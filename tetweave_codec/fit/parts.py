@@ -48,7 +48,9 @@ class Parts:
     weld (V,) int64: each vertex's welded index (the first vertex at its position); component (F,) int64: each
     face's component; closed: the closed components' ids (ascending); inverted (len(closed),) bool: whether each
     closed component is inside out (negative volume; turned outwards for the union); rest (F,) bool: faces of
-    the components that are not closed (and degenerate faces), which renders decide about; count: components."""
+    the components that are not closed (and degenerate faces), which renders decide about; count: components;
+    duplicate (F,) bool: faces that repeat an earlier face with the same corners in the same turn (two identical
+    parts on top of each other): in no part and not in rest, the earlier face stands for them."""
 
     weld: np.ndarray
     component: np.ndarray
@@ -56,6 +58,7 @@ class Parts:
     inverted: np.ndarray
     rest: np.ndarray
     count: int
+    duplicate: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -234,7 +237,13 @@ def split_parts(vertices: np.ndarray, faces: np.ndarray) -> Parts:
     wf = weld[f]
     degenerate = (wf[:, 0] == wf[:, 1]) | (wf[:, 1] == wf[:, 2]) | (wf[:, 2] == wf[:, 0])
     degenerate |= ~np.isfinite(v[f]).all(axis=(1, 2))
-    count, component = _components(v, wf, ~degenerate)
+    # a face repeating an earlier one (corners rotated to start at the smallest, so the turn is kept)
+    turn = np.take_along_axis(wf, (np.argmin(wf, axis=1)[:, None] + np.arange(3)) % 3, axis=1)
+    first = np.unique(turn, axis=0, return_index=True)[1]
+    duplicate = np.ones(len(f), dtype=bool)
+    duplicate[first] = False
+    duplicate &= ~degenerate
+    count, component = _components(v, wf, ~degenerate & ~duplicate)
     candidate = _closed_components(wf, component, count) & (np.bincount(component, minlength=count) >= 4)
     candidate &= np.bincount(component, weights=degenerate, minlength=count) == 0
     # signed volume and bounding box of each component (flat ones are two coincident sheets, not solids)
@@ -258,8 +267,8 @@ def split_parts(vertices: np.ndarray, faces: np.ndarray) -> Parts:
     closed = np.asarray(closed, dtype=np.int64)
     is_closed = np.zeros(count, dtype=bool)
     is_closed[closed] = True
-    rest = degenerate | ~is_closed[component]
-    return Parts(weld, component, closed, volume[closed] < 0, rest, count)
+    rest = degenerate | (~is_closed[component] & ~duplicate)
+    return Parts(weld, component, closed, volume[closed] < 0, rest, count, duplicate)
 
 
 def _closed_components(wf: np.ndarray, component: np.ndarray, count: int) -> np.ndarray:

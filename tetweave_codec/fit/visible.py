@@ -377,7 +377,7 @@ def choose_surface(vertices: np.ndarray, faces: np.ndarray, surface: str) -> Sur
         out = outside_surface(v, f, parts)
         return SurfaceChoice("visible", f"--surface visible; {_describe(out)}", out)
     if n_closed and not parts.rest.any():
-        if n_closed == 1:
+        if n_closed == 1 and not parts.duplicate.any():
             return SurfaceChoice("all", "a consistently oriented surface, one closed part")
         union = closed_union(v, f, parts)
         dropped = max(0.0, 1.0 - union.area / union.parts_area)
