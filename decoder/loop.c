@@ -72,20 +72,41 @@ int tw_half_edges(const int32_t *f, size_t nf, size_t nv, int32_t **rows, int32_
     }
 #undef HEAD
 #undef TAIL
-    for (size_t i = 0; i < nh; i++) { /* the twin (b, a): a binary search among b's rows, sorted by their ends */
-        int32_t a = r[2 * i], b = r[2 * i + 1], lo = start[b], hi = start[b + 1];
-        while (lo < hi) {
-            int32_t mid = lo + (hi - lo) / 2;
-            if (r[2 * mid + 1] < a)
-                lo = mid + 1;
-            else
-                hi = mid;
+    /* the twins: for each b, the rows (a, b) with a > b come in ascending a (rows are sorted by a), as do b's own
+     * rows (b, a) with a > b (sorted by their ends, after b's rows to smaller ends), so the k-th of the former is
+     * the twin of the k-th of the latter: a cursor per vertex instead of a search. Each row (a, b), a > b, either
+     * meets its twin there or some row has none (then a binary search fails as well); with as many rows a < b as
+     * a > b (a != b: no repeated corner) the pairing covers every row. start[u] holds u's first row. */
+    {
+        int32_t *cursor = by_b; /* by_b (cap entries) is done with: it holds the cursors unless nv > cap */
+        int32_t *own = NULL;
+        if (nv > cap) {
+            own = (int32_t *)malloc(sizeof(int32_t) * nv);
+            if (!own) {
+                status = -1;
+                goto done;
+            }
+            cursor = own;
         }
-        if (lo >= start[b + 1] || r[2 * lo + 1] != a) {
-            status = 1;
-            goto done;
+        for (size_t u = 0; u < nv; u++) cursor[u] = start[u];
+        size_t above = 0;
+        for (size_t i = 0; i < nh; i++)
+            if (r[2 * i + 1] < r[2 * i]) cursor[r[2 * i]]++;
+        for (size_t i = 0; i < nh; i++) {
+            int32_t a = r[2 * i], b = r[2 * i + 1];
+            if (a < b) continue;
+            int32_t t = cursor[b]++;
+            if (t >= start[b + 1] || r[2 * t + 1] != a) {
+                status = 1;
+                break;
+            }
+            tw[i] = t;
+            tw[t] = (int32_t)i;
+            above++;
         }
-        tw[i] = lo;
+        free(own);
+        if (status == 0 && 2 * above != nh) status = 1;
+        if (status != 0) goto done;
     }
 done:
     free(start);
@@ -100,17 +121,27 @@ done:
     return status;
 }
 
-/* The row of half-edge (u, w) among the sorted rows (u's rows are start[u] .. start[u + 1]), or -1. */
+/* The row of half-edge (u, w) among the sorted rows (u's rows are start[u] .. start[u + 1]), or -1. The lower
+ * bound of w among u's ends: for the few rows of a vertex of ordinary valence counted without branches (a binary
+ * search's branches go either way unpredictably), for many a binary search; both find the same row. */
+#define FIND_LINEAR 16
 static int64_t find_row(const int32_t *rows, const int64_t *start, int32_t u, int32_t w) {
     int64_t lo = start[u], hi = start[u + 1];
-    while (lo < hi) {
-        int64_t mid = lo + (hi - lo) / 2;
-        if (rows[2 * mid + 1] < w)
-            lo = mid + 1;
-        else
-            hi = mid;
+    if (hi - lo <= FIND_LINEAR) {
+        int64_t below = 0;
+        for (int64_t i = lo; i < hi; i++) below += rows[2 * i + 1] < w;
+        lo += below;
+    } else {
+        while (lo < hi) {
+            int64_t mid = lo + (hi - lo) / 2;
+            if (rows[2 * mid + 1] < w)
+                lo = mid + 1;
+            else
+                hi = mid;
+        }
+        hi = start[u + 1];
     }
-    return lo < start[u + 1] && rows[2 * lo + 1] == w ? lo : -1;
+    return lo < hi && rows[2 * lo + 1] == w ? lo : -1;
 }
 
 /*
@@ -145,8 +176,10 @@ int tw_loop_level(const double *v, const double *r, size_t nv, const int32_t *f,
     double *sum = (double *)malloc(sizeof(double) * 3 * vcap);
     double *deg = (double *)calloc(vcap, sizeof(double));
     int64_t *sharp_count = crease ? (int64_t *)calloc(vcap, sizeof(int64_t)) : NULL;
+    int64_t *cursor = (int64_t *)malloc(sizeof(int64_t) * vcap); /* per vertex: its next row to pair */
+    int32_t *twin_row = (int32_t *)malloc(sizeof(int32_t) * cap); /* per row: the row of (b, a) */
     int status = 0;
-    if (!start || !edge_id || !opp || !use || !sum || !deg || (crease && !sharp_count)) {
+    if (!start || !edge_id || !opp || !use || !sum || !deg || (crease && !sharp_count) || !cursor || !twin_row) {
         status = -1;
         goto done;
     }
@@ -174,15 +207,25 @@ int tw_loop_level(const double *v, const double *r, size_t nv, const int32_t *f,
         status = 1;
         goto done;
     }
+    /* each row (a, b), a > b, takes its twin's id; the twins by a cursor per vertex as in tw_half_edges (the k-th
+     * row (a, b) with a > b, in row order, is the twin of b's k-th row to an end above b): a row that does not
+     * meet its twin there means some row has none, and then a search would fail too. ne rows a > b paired with
+     * distinct rows of the ne a < b: every row has its twin. */
+    for (size_t u = 0; u < nv; u++) cursor[u] = start[u];
     for (size_t i = 0; i < nh; i++)
-        if (rows[2 * i] >= rows[2 * i + 1]) {
-            int64_t twin = rows[2 * i] == rows[2 * i + 1] ? -1 : find_row(rows, start, rows[2 * i + 1], rows[2 * i]);
-            if (twin < 0) {
-                status = 1;
-                goto done;
-            }
-            edge_id[i] = edge_id[twin];
+        if (rows[2 * i + 1] < rows[2 * i]) cursor[rows[2 * i]]++;
+    for (size_t i = 0; i < nh; i++) {
+        int32_t a = rows[2 * i], b = rows[2 * i + 1];
+        if (a < b) continue;
+        int64_t t = a == b ? start[b + 1] : cursor[b]++;
+        if (t >= start[b + 1] || rows[2 * t + 1] != a) {
+            status = 1;
+            goto done;
         }
+        edge_id[i] = edge_id[t];
+        twin_row[i] = (int32_t)t;
+        twin_row[t] = (int32_t)i;
+    }
     /* each face's half-edges: their rows give the new vertices; the face's third corner is the row's opposite */
     for (size_t i = 0; i < nf; i++) {
         const int32_t *fc = f + 3 * i;
@@ -238,8 +281,8 @@ int tw_loop_level(const double *v, const double *r, size_t nv, const int32_t *f,
     for (size_t i = 0; i < nh; i++) {
         int32_t a = rows[2 * i], b = rows[2 * i + 1];
         if (a > b) continue;
-        int64_t twin = find_row(rows, start, b, a);
-        if (twin < 0 || opp[i] < 0 || opp[twin] < 0) { /* a row no face listed */
+        int64_t twin = twin_row[i];
+        if (opp[i] < 0 || opp[twin] < 0) { /* a row no face listed */
             status = 1;
             goto done;
         }
@@ -261,6 +304,8 @@ done:
     free(sum);
     free(deg);
     free(sharp_count);
+    free(cursor);
+    free(twin_row);
     return status;
 }
 
