@@ -627,7 +627,9 @@ static void faces_pass(void *ctx, int64_t begin, int64_t end, int worker) {
 }
 
 /* `faces`' pair loop over the grid's cells [begin, end) (cell k: entries cstart[k] .. cstart[k + 1] of e); each
- * worker gathers a cell's faces into its own scratch (local, lcell, lids: `most` entries each per worker). */
+ * worker gathers a cell's boxes into its own scratch (lbox, lat, lid: `most` entries each per worker), and the
+ * corners, normal and vertex indices of a face (lcorner: 12 doubles, lids: 4 per entry) only when a pair of it
+ * passes the box test (most entries never do). */
 typedef struct {
     const double *v, *lo, *hi, *normal;
     const int32_t *f;
@@ -638,9 +640,10 @@ typedef struct {
     uint64_t mask, dims_y, dims_z;
     int fb;
     int64_t most;
-    double *local;
-    uint64_t *lcell;
+    double *lbox, *lcorner;
+    uint8_t *lat;
     int64_t *lids;
+    int32_t *lkeep;
 } FacesCells;
 
 static void faces_cells(void *ctx, int64_t begin, int64_t end, int worker) {
@@ -649,48 +652,67 @@ static void faces_cells(void *ctx, int64_t begin, int64_t end, int worker) {
     const int64_t *valid = c->valid;
     const int32_t *f = c->f;
     const uint8_t *only = c->only;
-    double *local = c->local + 19 * c->most * worker; /* box 6, corners 9, normal 3, |normal| */
-    uint64_t *lcell = c->lcell + 3 * c->most * worker;
-    int64_t *lids = c->lids + 4 * c->most * worker; /* face, its 3 vertex indices */
+    double *lbox = c->lbox + 6 * c->most * worker;       /* box: lo xyz, hi xyz */
+    double *lcorner = c->lcorner + 12 * c->most * worker; /* corners 9, normal 3 */
+    uint8_t *lat = c->lat + c->most * worker;           /* bit d: the box's lower cell is this cell in d; bit 3: loaded */
+    int64_t *lids = c->lids + 4 * c->most * worker;       /* face, its 3 vertex indices */
+    int32_t *lkeep = c->lkeep + c->most * worker;         /* the entries whose box passes with the current one */
     for (int64_t k = begin; k < end; k++) {
         int64_t s = c->cstart[k], r = c->cstart[k + 1];
         uint64_t key = e[s] >> c->fb;
         int any = 0; /* a cell without a face of interest has no pair to test */
         for (int64_t i = s; i < r && !any; i++) any = only[valid[(int64_t)(e[i] & mask)]];
         if (!any) continue;
+        /* the pair is tested once, in the cell of the larger of the two lower corners (floor is monotone). Every
+         * box here covers this cell, so its lower corner is at or below the cell in each coordinate, and the larger
+         * corner is this cell exactly when, in each coordinate, one of the two is */
+        uint64_t cz = key % dims_z, cy = key / dims_z % dims_y, cx = key / dims_z / dims_y;
         for (int64_t i = s; i < r; i++) {
-            int64_t p = (int64_t)(e[i] & mask), o = i - s, face = valid[p];
-            double *box = local + 19 * o;
-            lids[4 * o] = face;
+            int64_t p = (int64_t)(e[i] & mask), o = i - s;
+            double *box = lbox + 6 * o;
             for (int d = 0; d < 3; d++) {
                 box[d] = c->lo[3 * p + d];
                 box[3 + d] = c->hi[3 * p + d];
-                box[15 + d] = c->normal[3 * p + d];
-                lcell[3 * o + d] = (uint64_t)c->c0[3 * p + d];
-                lids[4 * o + 1 + d] = f[3 * face + d];
-                for (int q = 0; q < 3; q++) box[6 + 3 * d + q] = c->v[3 * f[3 * face + d] + q];
             }
-            box[18] = sqrt(dot3(box + 15, box + 15)); /* as the reference: sqrt(n . n) */
+            const int64_t *cp = c->c0 + 3 * p;
+            lat[o] = (uint8_t)(((uint64_t)cp[0] == cx) | ((uint64_t)cp[1] == cy) << 1 | ((uint64_t)cp[2] == cz) << 2);
+            lids[4 * o] = p;
         }
         for (int64_t i = s; i < r; i++) {
-            const double *bp = local + 19 * (i - s);
-            const uint64_t *cp = lcell + 3 * (i - s);
-            const int64_t *ip = lids + 4 * (i - s);
-            for (int64_t j = i + 1; j < r; j++) {
-                const double *bq = local + 19 * (j - s);
-                const uint64_t *cq = lcell + 3 * (j - s);
-                /* test the pair once: in the cell of the larger lower corner (floor is monotone) */
-                uint64_t mx = cp[0] > cq[0] ? cp[0] : cq[0], my = cp[1] > cq[1] ? cp[1] : cq[1];
-                uint64_t mz = cp[2] > cq[2] ? cp[2] : cq[2];
-                /* branch-free: these tests go either way unpredictably, and most pairs fail one */
-                int keep = (((mx * dims_y + my) * dims_z + mz) == key) & (bp[0] <= bq[3]) & (bq[0] <= bp[3]) &
-                           (bp[1] <= bq[4]) & (bq[1] <= bp[4]) & (bp[2] <= bq[5]) & (bq[2] <= bp[5]);
-                if (!keep) continue;
-                /* a cell's entries are sorted by face: ip's face is the lower one */
-                const int64_t *iq = lids + 4 * (j - s);
-                int64_t fa = ip[0], fz = iq[0];
+            int64_t oi = i - s, kept = 0;
+            const double *bp = lbox + 6 * oi;
+            const int at = lat[oi] & 7;
+            /* branch-free: these tests go either way unpredictably, and most pairs fail one; the pairs that pass
+             * are listed (the list grows by 0 or 1), then tested */
+            for (int64_t oj = oi + 1; oj < r - s; oj++) {
+                const double *bq = lbox + 6 * oj;
+                int keep = (((at | lat[oj]) & 7) == 7) & (bp[0] <= bq[3]) & (bq[0] <= bp[3]) & (bp[1] <= bq[4]) &
+                           (bq[1] <= bp[4]) & (bp[2] <= bq[5]) & (bq[2] <= bp[5]);
+                lkeep[kept] = (int32_t)oj;
+                kept += keep;
+            }
+            for (int64_t x = 0; x < kept; x++) {
+                int64_t oj = lkeep[x];
+                const double *bq = lbox + 6 * oj;
+                /* a cell's entries are sorted by face: i's face is the lower one */
+                int64_t fa = valid[lids[4 * oi]], fz = valid[lids[4 * oj]];
                 if (!only[fa] && !only[fz]) continue;
-                if (pair_intersects(bp + 6, bq + 6, ip + 1, iq + 1, bp + 15, bq + 15, bp, bq, bp[18], bq[18])) {
+                int64_t both[2] = {oi, oj};
+                for (int w = 0; w < 2; w++) {
+                    int64_t o = both[w];
+                    if (lat[o] & 8) continue;
+                    int64_t p = lids[4 * o], face = valid[p];
+                    double *corner = lcorner + 12 * o;
+                    for (int d = 0; d < 3; d++) {
+                        int32_t vid = f[3 * face + d];
+                        lids[4 * o + 1 + d] = vid;
+                        for (int q = 0; q < 3; q++) corner[3 * d + q] = c->v[3 * vid + q];
+                        corner[9 + d] = c->normal[3 * p + d];
+                    }
+                    lat[o] |= 8;
+                }
+                const double *ca = lcorner + 12 * oi, *cb = lcorner + 12 * oj;
+                if (pair_intersects(ca, cb, lids + 4 * oi + 1, lids + 4 * oj + 1, ca + 9, cb + 9, bp, bq, 0, 0)) {
                     FLAG_SET(c->flags + fa);
                     FLAG_SET(c->flags + fz);
                 }
@@ -716,7 +738,9 @@ int tw_crossings_grid(const double *v, size_t nv_, const int32_t *f, size_t nf_,
     int status = 0;
     int64_t *valid = NULL, *counts = NULL, *cstart = NULL;
     double *lo = NULL, *hi = NULL, *ext = NULL;
-    uint64_t *e = NULL, *lcell = NULL;
+    uint64_t *e = NULL;
+    uint8_t *lat = NULL;
+    int32_t *lkeep = NULL;
     int64_t *c0 = NULL, *lids = NULL;
     double *local = NULL, *normal = NULL;
     size_t cap = (size_t)(nf > 0 ? nf : 1);
@@ -804,18 +828,20 @@ int tw_crossings_grid(const double *v, size_t nv_, const int32_t *f, size_t nf_,
     }
     cstart[ncells] = t;
     int cell_workers = workers_for(threads, ncells, CELL_CHUNK);
-    /* per cell, its boxes' lower cells and bounds gathered contiguously (the pair loop is memory bound) */
-    local = (double *)malloc(sizeof(double) * 19 * (size_t)most * (size_t)cell_workers);
-    lcell = (uint64_t *)malloc(sizeof(uint64_t) * 3 * (size_t)most * (size_t)cell_workers);
+    /* per cell, its boxes gathered contiguously (the pair loop is memory bound) */
+    local = (double *)malloc(sizeof(double) * 18 * (size_t)most * (size_t)cell_workers);
+    lat = (uint8_t *)malloc((size_t)most * (size_t)cell_workers);
     lids = (int64_t *)malloc(sizeof(int64_t) * 4 * (size_t)most * (size_t)cell_workers);
-    if (!local || !lcell || !lids) {
+    lkeep = (int32_t *)malloc(sizeof(int32_t) * (size_t)most * (size_t)cell_workers);
+    if (!local || !lat || !lids || !lkeep) {
         status = -1;
         goto done;
     }
     FacesCells cells = {.v = v, .lo = lo, .hi = hi, .normal = normal, .f = f, .valid = valid, .c0 = c0,
                         .cstart = cstart, .e = e, .only = only, .flags = flags, .mask = (((uint64_t)1) << fb) - 1,
                         .dims_y = (uint64_t)dims[1], .dims_z = (uint64_t)dims[2], .fb = fb, .most = most,
-                        .local = local, .lcell = lcell, .lids = lids};
+                        .lbox = local, .lcorner = local + 6 * (size_t)most * (size_t)cell_workers, .lat = lat,
+                        .lids = lids, .lkeep = lkeep};
     parallel_for(cell_workers, ncells, CELL_CHUNK, faces_cells, &cells);
 done:
     free(valid);
@@ -827,8 +853,9 @@ done:
     free(e);
     free(c0);
     free(local);
-    free(lcell);
+    free(lat);
     free(lids);
+    free(lkeep);
     free(normal);
     return status;
 }
@@ -1588,15 +1615,16 @@ static void stars_patches(void *ctx, int64_t begin, int64_t end, int worker) {
     }
 }
 
-/* A parent as the grid's pair loop reads it: box (lo xyz, hi xyz), lower cell, vertex indices, marked child. */
+/* A parent as the grid's pair loop reads it: box (lo xyz, hi xyz), vertex indices (int32, as the faces'), where
+ * its lower cell is the cell's (bit d: in coordinate d) and whether it has a marked child (interest). */
 typedef struct {
     double box[6];
-    int64_t c0[3], ids[3], id;
-    int interest;
+    int32_t ids[3];
+    uint8_t at, interest;
 } CellParent;
 
 /* `stars`' pair loop over the parents' grid, cells [begin, end) (cell (x, y, z) is number (x dims_y + y) dims_z
- * + z); each worker gathers a cell's parents into its own scratch (`most` entries per worker) */
+ * + z); each worker gathers a cell's parents into its own scratch (`most` entries per worker, local and lpid) */
 typedef struct {
     const CheckFaces *s;
     const ParentRec *recs;
@@ -1607,6 +1635,8 @@ typedef struct {
     int group;
     int64_t most;
     CellParent *local;
+    int64_t *lpid;
+    int32_t *lkeep;
 } StarsCells;
 
 static void stars_cells(void *ctx, int64_t begin, int64_t end, int worker) {
@@ -1614,6 +1644,8 @@ static void stars_cells(void *ctx, int64_t begin, int64_t end, int worker) {
     const int group = c->group;
     const int64_t *dims = c->dims;
     CellParent *local = c->local + c->most * worker;
+    int64_t *lpid = c->lpid + c->most * worker;   /* each entry's parent */
+    int32_t *lkeep = c->lkeep + c->most * worker; /* the entries that pass with the current one */
     for (int64_t cid = begin; cid < end; cid++) {
         int64_t s0 = c->cstart[cid], m = c->cstart[cid + 1] - s0;
         if (m < 2) continue;
@@ -1621,33 +1653,42 @@ static void stars_cells(void *ctx, int64_t begin, int64_t end, int worker) {
         for (int64_t i = 0; i < m; i++) {
             int64_t p = c->bucket[s0 + i];
             CellParent *l = local + i;
-            l->id = p;
-            l->interest = c->interest[p];
+            const int64_t *g = c->gc + 6 * p;
+            lpid[i] = p;
+            l->interest = c->interest[p] != 0;
+            /* the pair is tested once, in the cell of the larger of the two lower corners: every box here covers
+             * this cell (lower corner at or below it), so the larger is this cell when in each coordinate one is */
+            l->at = (uint8_t)((g[0] == x) | (g[1] == y) << 1 | (g[2] == z) << 2);
             for (int k = 0; k < 3; k++) {
                 l->box[k] = c->gbox[6 * p + k];
                 l->box[3 + k] = c->gbox[6 * p + 3 + k];
-                l->c0[k] = c->gc[6 * p + k];
-                l->ids[k] = c->recs[p].ids[k];
+                l->ids[k] = (int32_t)c->recs[p].ids[k];
             }
         }
         for (int64_t i = 0; i < m; i++) {
             const CellParent *lp = local + i;
+            const double *bp = lp->box;
+            const int32_t v0 = lp->ids[0], v1 = lp->ids[1], v2 = lp->ids[2];
+            int64_t kept = 0;
+            /* branch-free (the tests go either way unpredictably): the pairs whose boxes overlap, one of which has
+             * a marked child, and which share no vertex (a shared vertex makes it a patch's pair) are listed (the
+             * list grows by 0 or 1 each), then tested */
             for (int64_t j = i + 1; j < m; j++) {
                 const CellParent *lr = local + j;
-                const double *bp = lp->box, *br = lr->box;
-                /* branch-free: the pair once (in the cell of its larger lower corner), boxes overlap */
-                int keep = ((lp->c0[0] > lr->c0[0] ? lp->c0[0] : lr->c0[0]) == x) &
-                           ((lp->c0[1] > lr->c0[1] ? lp->c0[1] : lr->c0[1]) == y) &
-                           ((lp->c0[2] > lr->c0[2] ? lp->c0[2] : lr->c0[2]) == z) & (bp[0] <= br[3]) &
-                           (br[0] <= bp[3]) & (bp[1] <= br[4]) & (br[1] <= bp[4]) & (bp[2] <= br[5]) &
-                           (br[2] <= bp[5]) & ((lp->interest | lr->interest) != 0);
-                if (!keep) continue;
-                const int64_t *vp = lp->ids, *vr = lr->ids;
-                int touch = 0;
-                for (int q = 0; q < 3; q++) touch |= (vp[q] == vr[0]) | (vp[q] == vr[1]) | (vp[q] == vr[2]);
-                if (touch) continue; /* a patch's pair */
+                const double *br = lr->box;
+                const int32_t *vr = lr->ids;
+                int touch = (v0 == vr[0]) | (v0 == vr[1]) | (v0 == vr[2]) | (v1 == vr[0]) | (v1 == vr[1]) |
+                            (v1 == vr[2]) | (v2 == vr[0]) | (v2 == vr[1]) | (v2 == vr[2]);
+                int keep = ((lp->at | lr->at) == 7) & (bp[0] <= br[3]) & (br[0] <= bp[3]) & (bp[1] <= br[4]) &
+                           (br[1] <= bp[4]) & (bp[2] <= br[5]) & (br[2] <= bp[5]) & (lp->interest | lr->interest) &
+                           !touch;
+                lkeep[kept] = (int32_t)j;
+                kept += keep;
+            }
+            for (int64_t t = 0; t < kept; t++) {
+                int64_t pa = lpid[i], pb = lpid[lkeep[t]];
                 for (int g = 0; g < group; g++)
-                    for (int h = 0; h < group; h++) test_pair(c->s, group * lp->id + g, group * lr->id + h);
+                    for (int h = 0; h < group; h++) test_pair(c->s, group * pa + g, group * pb + h);
             }
         }
     }
@@ -1669,6 +1710,8 @@ int tw_crossings_stars(const double *v, size_t nv_, const int32_t *f, size_t nf_
     int64_t *vstart = NULL, *vfaces = NULL, *gc = NULL, *bucket = NULL;
     int32_t *cstart = NULL;
     CellParent *local = NULL;
+    int64_t *lpid = NULL;
+    int32_t *lkeep = NULL;
     BlockSum *sums = NULL;
     uint8_t *runs = NULL;
     memset(s.flags, 0, (size_t)nf);
@@ -1824,14 +1867,17 @@ int tw_crossings_stars(const double *v, size_t nv_, const int32_t *f, size_t nf_
     for (int64_t i = 0; i < ncells; i++)
         if (cstart[i + 1] - cstart[i] > most) most = cstart[i + 1] - cstart[i];
     int cell_workers = workers_for(threads, ncells, CELL_CHUNK);
-    local = (CellParent *)malloc(sizeof(CellParent) * (size_t)(most > 0 ? most : 1) * (size_t)cell_workers);
-    if (!local) {
+    size_t slots = (size_t)(most > 0 ? most : 1) * (size_t)cell_workers;
+    local = (CellParent *)malloc(sizeof(CellParent) * slots);
+    lpid = (int64_t *)malloc(sizeof(int64_t) * slots);
+    lkeep = (int32_t *)malloc(sizeof(int32_t) * slots);
+    if (!local || !lpid || !lkeep) {
         status = -1;
         goto done;
     }
     StarsCells cells = {.s = &s, .recs = recs, .gbox = gbox, .gc = gc, .bucket = bucket, .cstart = cstart,
                         .interest = interest, .dims = dims, .group = group, .most = most > 0 ? most : 1,
-                        .local = local};
+                        .local = local, .lpid = lpid, .lkeep = lkeep};
     parallel_for(cell_workers, ncells, CELL_CHUNK, stars_cells, &cells);
     status = 0;
 done:
@@ -1848,6 +1894,8 @@ done:
     free(cstart);
     free(bucket);
     free(local);
+    free(lpid);
+    free(lkeep);
     free(sums);
     free(runs);
     return status;
