@@ -1383,7 +1383,7 @@ done:
  * child's unit normal is within angle t of `axis` (cos_t, sin_t), and `need` = the largest of STAR_MARGIN (longest
  * edge)^2 / |normal| over the children. ok: every child valid and the cone narrower than a half-space. */
 typedef struct {
-    int64_t ids[3], mid[3]; /* mid: m01, m12, m20 (children 4), the middle child's corners */
+    int32_t ids[3], mid[3]; /* mid: m01, m12, m20 (children 4), the middle child's corners (vertex indices) */
     double nsum[3], axis[3], cos_t, sin_t, need;
     uint8_t ok, marked;
 } ParentRec;
@@ -1393,20 +1393,20 @@ typedef struct {
 
 /* One vertex's patch: 1 when it is shown free of crossings (see above), 0 when its pairs must be tested. pf: the
  * k parents around u; group: children per parent. */
-static int patch_certified(const CheckFaces *s, const ParentRec *recs, int group, int64_t u, const int64_t *pf,
+static int patch_certified(const CheckFaces *s, const ParentRec *recs, int group, int64_t u, const int32_t *pf,
                            int64_t k) {
     if (k < 3 || k > MAX_STAR) return 0;
     int64_t a[MAX_STAR], b[MAX_STAR], mid[MAX_STAR], spoke_a[MAX_STAR], spoke_b[MAX_STAR], order[MAX_STAR];
     uint8_t used[MAX_STAR];
     for (int64_t t = 0; t < k; t++) {
         const ParentRec *r = recs + pf[t];
-        const int64_t *p = r->ids;
+        const int32_t *p = r->ids;
         if (!r->ok || p[0] == p[1] || p[1] == p[2] || p[2] == p[0]) return 0;
         int at = p[0] == u ? 0 : p[1] == u ? 1 : 2;
         a[t] = p[(at + 1) % 3];
         b[t] = p[(at + 2) % 3];
         if (group == 4) { /* the middle child (m01, m12, m20): edge (x_e, x_e+1) has its midpoint at e */
-            const int64_t *m = r->mid;
+            const int32_t *m = r->mid;
             mid[t] = m[(at + 1) % 3];
             spoke_a[t] = m[at];           /* midpoint of (u, a) */
             spoke_b[t] = m[(at + 2) % 3]; /* midpoint of (b, u) */
@@ -1593,7 +1593,7 @@ static void stars_pass(void *ctx, int64_t begin, int64_t end, int worker) {
 typedef struct {
     const CheckFaces *s;
     const ParentRec *recs;
-    const int64_t *vstart, *vfaces;
+    const int32_t *vstart, *vfaces;
     int group;
 } StarsPatches;
 
@@ -1603,7 +1603,7 @@ static void stars_patches(void *ctx, int64_t begin, int64_t end, int worker) {
     const ParentRec *recs = c->recs;
     const int group = c->group;
     for (int64_t u = begin; u < end; u++) {
-        const int64_t *pf = c->vfaces + c->vstart[u];
+        const int32_t *pf = c->vfaces + c->vstart[u];
         int64_t k = c->vstart[u + 1] - c->vstart[u], any = 0;
         for (int64_t t = 0; t < k && !any; t++) any |= recs[pf[t]].marked;
         if (!any || patch_certified(c->s, recs, group, u, pf, k)) continue;
@@ -1611,7 +1611,7 @@ static void stars_patches(void *ctx, int64_t begin, int64_t end, int worker) {
             for (int g = 0; g < group; g++)
                 for (int64_t w = t; w < k; w++)
                     for (int h = (w == t ? g + 1 : 0); h < group; h++)
-                        test_pair(c->s, group * pf[t] + g, group * pf[w] + h);
+                        test_pair(c->s, (int64_t)group * pf[t] + g, (int64_t)group * pf[w] + h);
     }
 }
 
@@ -1629,7 +1629,8 @@ typedef struct {
     const CheckFaces *s;
     const ParentRec *recs;
     const double *gbox;
-    const int64_t *gc, *bucket, *dims;
+    const int32_t *gc, *bucket;
+    const int64_t *dims;
     const int32_t *cstart;
     const uint8_t *interest;
     int group;
@@ -1653,7 +1654,7 @@ static void stars_cells(void *ctx, int64_t begin, int64_t end, int worker) {
         for (int64_t i = 0; i < m; i++) {
             int64_t p = c->bucket[s0 + i];
             CellParent *l = local + i;
-            const int64_t *g = c->gc + 6 * p;
+            const int32_t *g = c->gc + 6 * p;
             lpid[i] = p;
             l->interest = c->interest[p] != 0;
             /* the pair is tested once, in the cell of the larger of the two lower corners: every box here covers
@@ -1707,7 +1708,7 @@ int tw_crossings_stars(const double *v, size_t nv_, const int32_t *f, size_t nf_
     uint8_t *valid = NULL, *interest = NULL;
     double *ext = NULL, *gbox = NULL, *gext = NULL;
     ParentRec *recs = NULL;
-    int64_t *vstart = NULL, *vfaces = NULL, *gc = NULL, *bucket = NULL;
+    int32_t *vstart = NULL, *vfaces = NULL, *gc = NULL, *bucket = NULL; /* int32: see the guard below */
     int32_t *cstart = NULL;
     CellParent *local = NULL;
     int64_t *lpid = NULL;
@@ -1760,8 +1761,12 @@ int tw_crossings_stars(const double *v, size_t nv_, const int32_t *f, size_t nf_
     if (feasible < 0) status = -1;
     if (feasible <= 0) goto done;
     /* the parents around each vertex */
-    vstart = (int64_t *)calloc((size_t)nv + 1, sizeof(int64_t));
-    vfaces = (int64_t *)malloc(sizeof(int64_t) * 3 * (size_t)np);
+    /* int32 indices (half the fresh pages of int64): parent numbers, vertex indices (int32 faces) and cell
+     * coordinates (dims <= 1e9) fit, and 3 np counts when it is below 2^31, else undecided (never so at the
+     * decoder's face limit) */
+    if (3 * (uint64_t)np > (uint64_t)INT32_MAX) goto done;
+    vstart = (int32_t *)calloc((size_t)nv + 1, sizeof(int32_t));
+    vfaces = (int32_t *)malloc(sizeof(int32_t) * 3 * (size_t)np);
     if (!vstart || !vfaces) {
         status = -1;
         goto done;
@@ -1770,7 +1775,7 @@ int tw_crossings_stars(const double *v, size_t nv_, const int32_t *f, size_t nf_
         for (int c = 0; c < 3; c++) vstart[recs[j].ids[c] + 1]++;
     for (int64_t u = 0; u < nv; u++) vstart[u + 1] += vstart[u];
     for (int64_t j = 0; j < np; j++)
-        for (int c = 0; c < 3; c++) vfaces[vstart[recs[j].ids[c]]++] = j;
+        for (int c = 0; c < 3; c++) vfaces[vstart[recs[j].ids[c]]++] = (int32_t)j;
     for (int64_t u = nv; u > 0; u--) vstart[u] = vstart[u - 1];
     vstart[0] = 0;
     /* patches */
@@ -1778,7 +1783,7 @@ int tw_crossings_stars(const double *v, size_t nv_, const int32_t *f, size_t nf_
     parallel_for(workers_for(threads, nv, PATCH_CHUNK), nv, PATCH_CHUNK, stars_patches, &patches);
     /* parents sharing no vertex: a grid over their boxes */
     gext = (double *)malloc(sizeof(double) * (size_t)np);
-    gc = (int64_t *)malloc(sizeof(int64_t) * 6 * (size_t)np);
+    gc = (int32_t *)malloc(sizeof(int32_t) * 6 * (size_t)np);
     if (!gext || !gc) {
         status = -1;
         goto done;
@@ -1829,7 +1834,7 @@ int tw_crossings_stars(const double *v, size_t nv_, const int32_t *f, size_t nf_
         cell *= 2.0;
     }
     cstart = (int32_t *)calloc((size_t)ncells + 1, sizeof(int32_t));
-    bucket = (int64_t *)malloc(sizeof(int64_t) * (size_t)(entries > 0 ? entries : 1));
+    bucket = (int32_t *)malloc(sizeof(int32_t) * (size_t)(entries > 0 ? entries : 1));
     if (!cstart || !bucket) {
         status = -1;
         goto done;
@@ -1837,10 +1842,10 @@ int tw_crossings_stars(const double *v, size_t nv_, const int32_t *f, size_t nf_
     for (int64_t j = 0; j < np; j++) {
         if (interest[j] == 2) continue;
         const double *b = gbox + 6 * j;
-        int64_t *c = gc + 6 * j;
-        for (int k = 0; k < 3; k++) {
-            c[k] = (int64_t)((b[k] - go[k]) / cell);
-            c[3 + k] = (int64_t)((b[3 + k] - go[k]) / cell);
+        int32_t *c = gc + 6 * j;
+        for (int k = 0; k < 3; k++) { /* below dims[k] (rounding is monotone), <= MAX_DENSE_CELLS */
+            c[k] = (int32_t)(int64_t)((b[k] - go[k]) / cell);
+            c[3 + k] = (int32_t)(int64_t)((b[3 + k] - go[k]) / cell);
         }
         for (int64_t x = c[0]; x <= c[3]; x++)
             for (int64_t y = c[1]; y <= c[4]; y++)
@@ -1855,10 +1860,10 @@ int tw_crossings_stars(const double *v, size_t nv_, const int32_t *f, size_t nf_
     if (in_cells > MAX_PARENT_PAIRS) goto done;
     for (int64_t j = 0; j < np; j++) {
         if (interest[j] == 2) continue;
-        const int64_t *c = gc + 6 * j;
+        const int32_t *c = gc + 6 * j;
         for (int64_t x = c[0]; x <= c[3]; x++)
             for (int64_t y = c[1]; y <= c[4]; y++)
-                for (int64_t z = c[2]; z <= c[5]; z++) bucket[cstart[(x * dims[1] + y) * dims[2] + z]++] = j;
+                for (int64_t z = c[2]; z <= c[5]; z++) bucket[cstart[(x * dims[1] + y) * dims[2] + z]++] = (int32_t)j;
     }
     for (int64_t i = ncells; i > 0; i--) cstart[i] = cstart[i - 1];
     cstart[0] = 0;
