@@ -1417,13 +1417,13 @@ static int patch_certified(const CheckFaces *s, const ParentRec *recs, int group
     order[0] = 0;
     used[0] = 1;
     for (int64_t t = 1; t < k; t++) {
-        int64_t prev = order[t - 1], next = -1;
-        for (int64_t c = 0; c < k; c++)
-            if (!used[c] && a[c] == b[prev]) {
-                if (next >= 0) return 0; /* two candidates: not a manifold fan */
-                next = c;
-            }
-        if (next < 0) return 0;
+        int64_t prev = order[t - 1], next = -1, found = 0, want = b[prev];
+        for (int64_t c = 0; c < k; c++) { /* branch-free: which parent matches is unpredictable */
+            int hit = !used[c] & (a[c] == want);
+            found += hit;
+            next = hit ? c : next;
+        }
+        if (found != 1) return 0; /* none, or two candidates: not a manifold fan */
         order[t] = next;
         used[next] = 1;
     }
@@ -1437,7 +1437,7 @@ static int patch_certified(const CheckFaces *s, const ParentRec *recs, int group
         }
     if (group == 4)
         for (int64_t t = 0; t < k; t++) {
-            int64_t x = order[t], y = order[(t + 1) % k];
+            int64_t x = order[t], y = order[t + 1 < k ? t + 1 : 0]; /* (t + 1) mod k without a division */
             if (spoke_b[x] != spoke_a[y]) return 0;
             if (spoke_a[x] == u || mid[x] == u) return 0;
             for (int64_t c = 0; c < k; c++)
@@ -1486,7 +1486,7 @@ static int patch_certified(const CheckFaces *s, const ParentRec *recs, int group
     }
     int winding = 0;
     for (int64_t i = 0; i < nb; i++) {
-        const double *p = q[i], *r = q[(i + 1) % nb];
+        const double *p = q[i], *r = q[i + 1 < nb ? i + 1 : 0];
         double cr = p[0] * r[1] - p[1] * r[0];
         double lp = p[0] * p[0] + p[1] * p[1], lr = r[0] * r[0] + r[1] * r[1];
         if (!(cr > 0 && cr * cr >= STAR_MARGIN * STAR_MARGIN * lp * lr)) return 0; /* cr > 0: lp, lr > 0 */
