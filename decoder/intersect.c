@@ -451,19 +451,21 @@ static double pair_scale(const double *a[3], const double *b[3]) {
  * not used (the tolerances are the pair's, not the faces'). */
 /* Whether one face's free corners (orientations o against the other face's plane) all lie beyond `limit` on one
  * side of it, for either face: the pair is then apart. */
-static int one_side_apart(const double *oa, const double *ob, const int *free_a, const int *free_b, double limit) {
+static inline int one_side_apart(const double *oa, const double *ob, const int *free_a, const int *free_b,
+                                 double limit) {
+    /* branch-free: a corner that is not free passes both tests */
+    int apart = 0;
     for (int side = 0; side < 2; side++) {
         const double *o = side ? ob : oa;
         const int *fr = side ? free_b : free_a;
         int above = 1, below = 1;
-        for (int i = 0; i < 3; i++)
-            if (fr[i]) {
-                above &= o[i] > limit;
-                below &= o[i] < -limit;
-            }
-        if (above || below) return 1;
+        for (int i = 0; i < 3; i++) {
+            above &= !fr[i] | (o[i] > limit);
+            below &= !fr[i] | (o[i] < -limit);
+        }
+        apart |= above | below;
     }
-    return 0;
+    return apart;
 }
 
 static int pair_intersects(const double *ta, const double *tb, const int64_t *fa, const int64_t *fb,
