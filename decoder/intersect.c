@@ -41,12 +41,13 @@ static inline int bit_length(uint64_t v) {
     return b;
 }
 
-/* Sort a[0..m) ascending by its low `bits` bits (values below 2**bits); tmp: scratch of m items. */
-static void radix_sort(uint64_t *a, uint64_t *tmp, int64_t m, int bits) {
+/* Sort a[0..m) ascending by its low `bits` bits (values below 2**bits) when a is already in ascending order of its
+ * low `sorted` bits: a stable sort by bits sorted .. bits - 1 (LSD passes from there). tmp: scratch of m items. */
+static void radix_sort(uint64_t *a, uint64_t *tmp, int64_t m, int sorted, int bits) {
     int64_t count[1 << RADIX_BITS];
     uint64_t *src = a, *dst = tmp;
     const uint64_t mask = (1u << RADIX_BITS) - 1;
-    for (int shift = 0; shift < bits; shift += RADIX_BITS) {
+    for (int shift = sorted; shift < bits; shift += RADIX_BITS) {
         memset(count, 0, sizeof count);
         for (int64_t i = 0; i < m; i++) count[(src[i] >> shift) & mask]++;
         int64_t sum = 0;
@@ -557,7 +558,9 @@ static int grid(const double *lo, const double *hi, int64_t n, double cell, cons
         free(e);
         return -1;
     }
-    radix_sort(e, tmp, t, fb + cb);
+    /* the entries were written face by face: in ascending order of their low fb bits, so only the cell bits are
+     * sorted (stable: a cell's faces stay ascending) */
+    radix_sort(e, tmp, t, fb, fb + cb);
     free(tmp);
     long long pairs = 0;
     for (int64_t s = 0; s < t;) {
