@@ -523,21 +523,21 @@ static int grid(const double *lo, const double *hi, int64_t n, double cell, cons
                 uint64_t **keys, int64_t *count, int *face_bits, int64_t *dims) {
     double limit = 64.0 * (double)n + 1000000.0, total_cells = 0;
     dims[0] = dims[1] = dims[2] = 1;
+    /* one pass: the entries' count (stopping where it crosses the limit), the lower cells and the dimensions */
     for (int64_t i = 0; i < n; i++) {
-        double span = 1;
+        double span = 1, a[3], b[3];
         for (int k = 0; k < 3; k++) {
-            double a = floor((lo[3 * i + k] - origin[k]) / cell), b = floor((hi[3 * i + k] - origin[k]) / cell);
-            span *= b - a + 1;
+            a[k] = floor((lo[3 * i + k] - origin[k]) / cell);
+            b[k] = floor((hi[3 * i + k] - origin[k]) / cell);
+            span *= b[k] - a[k] + 1;
         }
         total_cells += span;
         if (total_cells > limit) return 1;
-    }
-    for (int64_t i = 0; i < n; i++)
-        for (int k = 0; k < 3; k++) {
-            c0[3 * i + k] = (int64_t)floor((lo[3 * i + k] - origin[k]) / cell);
-            int64_t c1 = (int64_t)floor((hi[3 * i + k] - origin[k]) / cell);
-            if (c1 + 1 > dims[k]) dims[k] = c1 + 1;
+        for (int k = 0; k < 3; k++) { /* converted only under the limit, as a separate pass would */
+            c0[3 * i + k] = (int64_t)a[k];
+            if ((int64_t)b[k] + 1 > dims[k]) dims[k] = (int64_t)b[k] + 1;
         }
+    }
     int fb = bit_length((uint64_t)n);
     int cb = bit_length((uint64_t)dims[0]) + bit_length((uint64_t)dims[1]) + bit_length((uint64_t)dims[2]);
     if (fb + cb > 63) return 3;
