@@ -916,6 +916,38 @@ static void test_pair(const CheckFaces *s, int64_t a, int64_t b) {
     }
 }
 
+/* test_pair(group pa + g, group pb + h) for every child g of parent pa and h of parent pb (pa != pb, group <= 4),
+ * in that order, with the same tests: each child's corners, box and normal computed once, not once per pair. */
+static void test_parents(const CheckFaces *s, int group, int64_t pa, int64_t pb) {
+    double t[2][4][9], box[2][4][6], nrm[2][4][3];
+    const int64_t base[2] = {group * pa, group * pb};
+    for (int w = 0; w < 2; w++)
+        for (int g = 0; g < group; g++)
+            if (s->valid[base[w] + g]) {
+                face_corners_box(s, base[w] + g, t[w][g], box[w][g]);
+                face_normal(t[w][g], nrm[w][g]);
+            }
+    const int lo = pa < pb ? 0 : 1, hi = 1 - lo; /* the lower parent's children are the lower faces */
+    for (int g = 0; g < group; g++)
+        for (int h = 0; h < group; h++) {
+            const int ka = lo == 0 ? g : h, kb = lo == 0 ? h : g; /* child of the lower, of the higher */
+            const int64_t a = base[lo] + ka, b = base[hi] + kb;
+            if (!s->valid[a] || !s->valid[b] || !(s->only[a] || s->only[b]) ||
+                (FLAG_GET(s->flags + a) && FLAG_GET(s->flags + b)))
+                continue;
+            const double *ba = box[lo][ka], *bb = box[hi][kb];
+            if (!(ba[0] <= bb[3] && bb[0] <= ba[3] && ba[1] <= bb[4] && bb[1] <= ba[4] && ba[2] <= bb[5] &&
+                  bb[2] <= ba[5]))
+                continue;
+            int64_t ia[3] = {s->f[3 * a], s->f[3 * a + 1], s->f[3 * a + 2]};
+            int64_t ib[3] = {s->f[3 * b], s->f[3 * b + 1], s->f[3 * b + 2]};
+            if (pair_intersects(t[lo][ka], t[hi][kb], ia, ib, nrm[lo][ka], nrm[hi][kb], ba, bb, 0, 0)) {
+                FLAG_SET(s->flags + a);
+                FLAG_SET(s->flags + b);
+            }
+        }
+}
+
 /* The cells c (6: lower x y z, upper x y z) that the closed box lo (3,), hi (3,) covers on the lattice of side
  * `cell` from `origin`: every quotient is >= 0, where truncation is floor (the reference's floor of the same
  * quotient). Returns the number of cells, summed as the reference's grid sums it. */
@@ -1691,11 +1723,7 @@ static void stars_cells(void *ctx, int64_t begin, int64_t end, int worker) {
                 lkeep[kept] = (int32_t)j;
                 kept += keep;
             }
-            for (int64_t t = 0; t < kept; t++) {
-                int64_t pa = lpid[i], pb = lpid[lkeep[t]];
-                for (int g = 0; g < group; g++)
-                    for (int h = 0; h < group; h++) test_pair(c->s, group * pa + g, group * pb + h);
-            }
+            for (int64_t t = 0; t < kept; t++) test_parents(c->s, group, lpid[i], lpid[lkeep[t]]);
         }
     }
 }
