@@ -178,8 +178,10 @@ int tw_loop_level(const double *v, const double *r, size_t nv, const int32_t *f,
     int64_t *sharp_count = crease ? (int64_t *)calloc(vcap, sizeof(int64_t)) : NULL;
     int64_t *cursor = (int64_t *)malloc(sizeof(int64_t) * vcap); /* per vertex: its next row to pair */
     int32_t *twin_row = (int32_t *)malloc(sizeof(int32_t) * cap); /* per row: the row of (b, a) */
+    int32_t *edge_row = (int32_t *)malloc(sizeof(int32_t) * (ne + 1)); /* per edge: its row (a, b), a < b */
     int status = 0;
-    if (!start || !edge_id || !opp || !use || !sum || !deg || (crease && !sharp_count) || !cursor || !twin_row) {
+    if (!start || !edge_id || !opp || !use || !sum || !deg || (crease && !sharp_count) || !cursor || !twin_row ||
+        !edge_row) {
         status = -1;
         goto done;
     }
@@ -194,36 +196,39 @@ int tw_loop_level(const double *v, const double *r, size_t nv, const int32_t *f,
         }
     }
     for (size_t u = 0; u < nv; u++) start[u + 1] += start[u];
-    size_t count = 0; /* edge ids: the rows (a, b) with a < b, in order; a row (b, a) takes its twin's id */
-    for (size_t i = 0; i < nh; i++)
-        if (rows[2 * i] < rows[2 * i + 1]) {
-            if (out_ends) {
-                out_ends[2 * count] = rows[2 * i];
-                out_ends[2 * count + 1] = rows[2 * i + 1];
-            }
-            edge_id[i] = (int32_t)count++;
+    /* edge ids: the rows (a, b) with a < b, in order (edge_row: edge e's row); a row (b, a) takes its twin's id.
+     * Branch-free (a < b goes either way unpredictably): every row writes at the next edge's slot, which only a
+     * row a < b keeps (edge_row has room for ne + 1; out_ends' writes stay below ne) */
+    size_t count = 0;
+    for (size_t i = 0; i < nh; i++) {
+        int32_t a = rows[2 * i], b = rows[2 * i + 1];
+        if (count <= ne) edge_row[count] = (int32_t)i;
+        if (out_ends && count < ne) {
+            out_ends[2 * count] = a;
+            out_ends[2 * count + 1] = b;
         }
+        edge_id[i] = (int32_t)count; /* a row a >= b gets its twin's below, or is refused */
+        count += a < b;
+    }
     if (count != ne || 2 * ne != nh) {
         status = 1;
         goto done;
     }
-    /* each row (a, b), a > b, takes its twin's id; the twins by a cursor per vertex as in tw_half_edges (the k-th
-     * row (a, b) with a > b, in row order, is the twin of b's k-th row to an end above b): a row that does not
-     * meet its twin there means some row has none, and then a search would fail too. ne rows a > b paired with
-     * distinct rows of the ne a < b: every row has its twin. */
+    /* the twins by a cursor per vertex, as in tw_half_edges from the other side: the k-th row (a, b) with a < b, in
+     * row order, is the twin of b's k-th row (b, a) to an end below b (b's first rows). A row a < b that does not
+     * meet its twin there means some row has none, and then a search would fail too; the ne rows a < b paired
+     * with distinct rows of the other ne (no row a == b can be paired, so none is left over): every row has its
+     * twin, the one a search finds. */
     for (size_t u = 0; u < nv; u++) cursor[u] = start[u];
-    for (size_t i = 0; i < nh; i++)
-        if (rows[2 * i + 1] < rows[2 * i]) cursor[rows[2 * i]]++;
-    for (size_t i = 0; i < nh; i++) {
-        int32_t a = rows[2 * i], b = rows[2 * i + 1];
-        if (a < b) continue;
-        int64_t t = a == b ? start[b + 1] : cursor[b]++;
-        if (t >= start[b + 1] || rows[2 * t + 1] != a) {
+    for (size_t e = 0; e < ne; e++) {
+        int32_t t = edge_row[e], a = rows[2 * t], b = rows[2 * t + 1];
+        int64_t i = cursor[b]++;
+        if (i >= start[b + 1] || rows[2 * i + 1] != a) {
             status = 1;
             goto done;
         }
-        edge_id[i] = edge_id[t];
-        twin_row[i] = (int32_t)t;
+        edge_id[i] = (int32_t)e;
+        twin_row[i] = t;
         twin_row[t] = (int32_t)i;
     }
     /* each face's half-edges: their rows give the new vertices; the face's third corner is the row's opposite */
@@ -277,10 +282,9 @@ int tw_loop_level(const double *v, const double *r, size_t nv, const int32_t *f,
             if (r) out_r[3 * i + d] = r[3 * i + d];
         }
     }
-    /* edge vertices */
-    for (size_t i = 0; i < nh; i++) {
-        int32_t a = rows[2 * i], b = rows[2 * i + 1];
-        if (a > b) continue;
+    /* edge vertices, edge by edge (the rows a < b in order) */
+    for (size_t e = 0; e < ne; e++) {
+        int32_t i = edge_row[e], a = rows[2 * i], b = rows[2 * i + 1];
         int64_t twin = twin_row[i];
         if (opp[i] < 0 || opp[twin] < 0) { /* a row no face listed */
             status = 1;
@@ -306,6 +310,7 @@ done:
     free(sharp_count);
     free(cursor);
     free(twin_row);
+    free(edge_row);
     return status;
 }
 
