@@ -89,12 +89,17 @@ int tw_half_edges(const int32_t *f, size_t nf, size_t nv, int32_t **rows, int32_
             cursor = own;
         }
         for (size_t u = 0; u < nv; u++) cursor[u] = start[u];
-        size_t above = 0;
-        for (size_t i = 0; i < nh; i++)
-            if (r[2 * i + 1] < r[2 * i]) cursor[r[2 * i]]++;
+        size_t above = 0, listed = 0;
+        /* branch-free (a > b goes either way unpredictably): the rows a > b listed in order (in `order`, done
+         * with), each vertex's cursor past its rows to smaller ends */
         for (size_t i = 0; i < nh; i++) {
-            int32_t a = r[2 * i], b = r[2 * i + 1];
-            if (a < b) continue;
+            int32_t below = r[2 * i + 1] < r[2 * i];
+            cursor[r[2 * i]] += below;
+            order[listed] = (int32_t)i;
+            listed += (size_t)below;
+        }
+        for (size_t k = 0; k < listed; k++) {
+            int32_t i = order[k], a = r[2 * i], b = r[2 * i + 1];
             int32_t t = cursor[b]++;
             if (t >= start[b + 1] || r[2 * t + 1] != a) {
                 status = 1;
