@@ -411,28 +411,69 @@ def _winding_number(point: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarr
     return float(2.0 * np.arctan2(det, den).sum() / (4.0 * np.pi))
 
 
-def thin_slab(vertices: np.ndarray, faces: np.ndarray, thickness: float) -> tuple[np.ndarray, np.ndarray]:
-    """An open surface (vertices (V,3), faces (F,3): sheets, cards, leaves) as a closed slab `thickness` thick:
-    welded by position and consistently oriented per component (trimesh), its vertices moved by +-thickness / 2
-    along their area-weighted normals (the top with the faces' orientation, the bottom reversed), every boundary
-    edge closed by a wall of two triangles. Returns (vertices (2V',3), faces (2F + 4B, 3)), outward-oriented where
-    the input is an edge-manifold (the fit's winding number is then 1 inside the slab)."""
+def thin_slab(
+    vertices: np.ndarray, faces: np.ndarray, thickness: float, solid=None, reach: float = 0.0
+) -> tuple[np.ndarray, np.ndarray]:
+    """An open surface (vertices (V,3), faces (F,3): sheets, cards, leaves, a shirt), its faces turned towards the
+    views that see them, as a closed slab `thickness` thick behind it: welded by position and consistently oriented
+    per component (trimesh; each component keeps the orientation most of its area had), the top on the surface
+    itself (what a viewer sees stays where it was), the bottom `thickness` behind it along the area-weighted vertex
+    normals and reversed, every boundary edge closed by a wall of two triangles. Returns (vertices (2V',3), faces
+    (2F + 4B, 3)), outward-oriented where the input is an edge-manifold (the fit's winding number is then 1 inside
+    the slab). solid: (vertices, faces) of a closed surface the sheet may rest on (a shirt on a body): where a
+    vertex of the sheet is within `reach` of it, the bottom goes down to it and `thickness` into it, so that the
+    union of the slab and the solid leaves no gap a viewer cannot see into anyway."""
     import trimesh
 
-    m = trimesh.Trimesh(np.asarray(vertices, dtype=np.float64), np.asarray(faces, dtype=np.int64), process=True)
+    given_v = np.asarray(vertices, dtype=np.float64)
+    given_f = np.asarray(faces, dtype=np.int64)
+    m = trimesh.Trimesh(given_v, given_f, process=True)
+    before = m.face_normals.copy() * m.area_faces[:, None]
     trimesh.repair.fix_winding(m)
     v = np.asarray(m.vertices, dtype=np.float64)
-    f = np.asarray(m.faces, dtype=np.int64)
+    f = np.asarray(m.faces, dtype=np.int64).copy()
+    if len(f) == len(before):  # fix_winding may turn a whole component against the views: turn it back
+        label = trimesh.graph.connected_component_labels(m.face_adjacency, node_count=len(f))
+        agree = np.bincount(label, weights=np.einsum("ij,ij->i", m.face_normals, before))
+        back = agree[label] < 0
+        f[back] = f[back][:, ::-1]
     cross = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
     normals = np.zeros_like(v)
     for k in range(3):
         np.add.at(normals, f[:, k], cross)
     normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-300)
     n = len(v)
-    out_v = np.concatenate([v + 0.5 * thickness * normals, v - 0.5 * thickness * normals])
+    depth = np.full(n, thickness)
+    if solid is not None and reach > 0 and len(solid[1]):
+        from tetweave_codec.geometry.closest import SurfaceTree
+
+        gap = np.sqrt(SurfaceTree(*solid).query(v)[0])
+        near = gap <= reach
+        depth[near] = gap[near] + thickness
+    out_v = np.concatenate([v, v - depth[:, None] * normals])
     directed = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
     key = directed[:, 0] * n + directed[:, 1]
     twin = directed[:, 1] * n + directed[:, 0]
     a, b = directed[~np.isin(key, twin)].T  # boundary edges a -> b, as the top's faces run them
     walls = np.concatenate([np.stack([b, a, a + n], axis=1), np.stack([b, a + n, b + n], axis=1)])
     return out_v, np.concatenate([f, f[:, ::-1] + n, walls])
+
+
+def union_with(vertices: np.ndarray, faces: np.ndarray, other_v: np.ndarray, other_f: np.ndarray):
+    """The exact union (manifold3d) of two closed, outward surfaces (vertices (V,3) / faces (F,3) each), sealed
+    cavities dropped (`outer_shells`): (vertices, faces), or None when manifold3d refuses either (a slab that folds
+    over itself where the sheet curves tighter than its thickness)."""
+
+    pieces = []
+    for v, f in ((vertices, faces), (other_v, other_f)):
+        used, local = np.unique(np.asarray(f, dtype=np.int64), return_inverse=True)
+        m = _manifold(np.asarray(v, dtype=np.float64)[used], local.reshape(-1, 3))
+        if m is None:
+            return None
+        pieces.append(m)
+    mesh = (pieces[0] + pieces[1]).to_mesh64()
+    uv = np.array(mesh.vert_properties, dtype=np.float64)[:, :3]
+    uf = np.array(mesh.tri_verts, dtype=np.int64).reshape(-1, 3)
+    if not len(uf):
+        return None
+    return uv, uf[outer_shells(uv, uf)]

@@ -59,6 +59,9 @@ POINT_CHUNK = 200_000
 # over 16 % of it (6.4e-3 against spot + the square); given as a 0.0075-thick box, 3.7e-3 (docs/measurements/
 # parts.md). 0 keeps them open.
 SHEET_THICKNESS = 0.0075
+# A sheet closer than this to the closed parts (a shirt on a body) is a slab down to them: no viewer sees into
+# the narrow gap between them, and the union of slab and body has none (normalized frame, fit.parts.thin_slab).
+SHEET_REACH = 0.03
 # "auto" takes the visible surface when more than this share of the input's area is seen by no view (or lies inside
 # other closed parts).
 HIDDEN_AREA_SHARE = 0.01
@@ -319,14 +322,20 @@ def outside_surface(vertices: np.ndarray, faces: np.ndarray, parts=None, union=N
     share = max(0.0, 1.0 - float(face_areas(out_v, out_f).sum()) / total)
     flipped = int(parts.inverted.sum() + (flip & rest_seen).sum())
     # the other faces' pieces as a thin closed slab: an open sheet fitted as it is comes out as a slab with holes
-    from tetweave_codec.fit.parts import thin_slab
+    from tetweave_codec.fit.parts import thin_slab, union_with
 
     n_union = int(keep_union.sum())
     if SHEET_THICKNESS > 0 and len(out_f) > n_union:
-        sv, sf = thin_slab(out_v, out_f[n_union:], SHEET_THICKNESS)
-        used, inverse = np.unique(out_f[:n_union], return_inverse=True)
-        out_v = np.concatenate([out_v[used], sv])
-        out_f = np.concatenate([inverse.reshape(-1, 3), sf + len(used)]).astype(np.int64)
+        sv, sf = thin_slab(out_v, out_f[n_union:], SHEET_THICKNESS, (uv, uf), SHEET_REACH)
+        # the slab and the whole union as one closed surface (the union's faces only the sheets hid included: a
+        # shirt's slab reaching the body beneath seals what it covers; a farther gap stays, as a viewer's crevice)
+        merged = union_with(uv, uf, sv, sf)
+        if merged is not None:
+            out_v, out_f = merged
+        else:
+            used, inverse = np.unique(out_f[:n_union], return_inverse=True)
+            out_v = np.concatenate([out_v[used], sv])
+            out_f = np.concatenate([inverse.reshape(-1, 3), sf + len(used)]).astype(np.int64)
     return VisibleSurface(out_v, out_f, share, flipped, len(out_f), "union+rendered", n_closed)
 
 
