@@ -29,7 +29,7 @@
 
 #include "internal.h"
 
-/* Integer helpers (as geometry/_native_sort.h; the core keeps its own copy, it never includes the package's). */
+/* Integer helpers (radix.h's sort, with a start bit for entries already sorted by their low bits). */
 #define RADIX_BITS 11
 
 static inline int bit_length(uint64_t v) {

@@ -1,5 +1,4 @@
-/* radix.h -- integer helpers shared by delaunay.c and marching.c (header-only: each file gets its own static copy;
- * the same code as tetweave_codec/geometry/_native_sort.h, which the other extensions still use). */
+/* radix.h -- integer helpers shared by delaunay.c and marching.c (header-only: each file gets its own static copy). */
 #ifndef TETWEAVE_RADIX_H
 #define TETWEAVE_RADIX_H
 
