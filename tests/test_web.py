@@ -25,8 +25,8 @@ REPO = Path(__file__).resolve().parent.parent
 WEB = REPO / "web"
 WASM = WEB / "tetweave_decoder.wasm"
 MODULE = WEB / "tetweave_decoder.mjs"
-sys.path.insert(0, str(WEB))
-import build as web_build  # noqa: E402 (web/build.py: its pinned zig version and the build itself)
+
+from tetweave_codec.web import build as web_build  # noqa: E402 (web/build.py: its pinned zig version, the build)
 
 FILES = sorted(REPO.glob("benchmarks/results/files/*/*.tw")) + sorted(REPO.glob("tests/data/*.tw"))
 LEVELS = ("control", "smoothed", "full")
