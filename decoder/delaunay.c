@@ -927,7 +927,7 @@ static int run(const int32_t *cells, int64_t n_in, Result *res) {
         uint64_t round = (uint64_t)(BRIO_LEVELS - tz);
         order[r] = (round << 56) | (hilbert3(h[0], h[1], h[2], hbits) << 26) | (uint64_t)r;
     }
-    tw_radix_sort(order, otmp, m, 60);
+    tw_radix_sort(order, otmp, m, 0, 60);
     free(otmp);
     otmp = NULL;
     /* renumber the vertices in insertion order (nearby vertices near in memory); keep their ranks */

@@ -28,41 +28,9 @@
 #include <string.h>
 
 #include "internal.h"
+#include "radix.h"
 
-/* Integer helpers (radix.h's sort, with a start bit for entries already sorted by their low bits). */
-#define RADIX_BITS 11
-
-static inline int bit_length(uint64_t v) {
-    int b = 0;
-    while (v) {
-        b++;
-        v >>= 1;
-    }
-    return b;
-}
-
-/* Sort a[0..m) ascending by its low `bits` bits (values below 2**bits) when a is already in ascending order of its
- * low `sorted` bits: a stable sort by bits sorted .. bits - 1 (LSD passes from there). tmp: scratch of m items. */
-static void radix_sort(uint64_t *a, uint64_t *tmp, int64_t m, int sorted, int bits) {
-    int64_t count[1 << RADIX_BITS];
-    uint64_t *src = a, *dst = tmp;
-    const uint64_t mask = (1u << RADIX_BITS) - 1;
-    for (int shift = sorted; shift < bits; shift += RADIX_BITS) {
-        memset(count, 0, sizeof count);
-        for (int64_t i = 0; i < m; i++) count[(src[i] >> shift) & mask]++;
-        int64_t sum = 0;
-        for (uint64_t d = 0; d <= mask; d++) {
-            int64_t c = count[d];
-            count[d] = sum;
-            sum += c;
-        }
-        for (int64_t i = 0; i < m; i++) dst[count[(src[i] >> shift) & mask]++] = src[i];
-        uint64_t *t = src;
-        src = dst;
-        dst = t;
-    }
-    if (src != a) memcpy(a, src, (size_t)m * sizeof(uint64_t));
-}
+/* Integer helpers: radix.h (bit length, the radix sort with a start bit). */
 
 /* ------------------------------------------------------------------------------------------------------------
  * Threads. Every entry point takes a thread count. With 1 nothing here runs: each loop is one call over its whole
@@ -215,11 +183,11 @@ static double kth_smallest(double *a, int64_t n, int64_t k) {
  * value, -0 or a NaN) 0 and nothing written: the caller selects by comparisons (kth_smallest). For such values the
  * bit patterns, read as unsigned integers, are in the order of the values and equal values have equal bits, so a
  * radix selection on the bits gives the value kth_smallest gives. buf: scratch of n doubles (a is not changed).
- * Digits of RADIX_BITS bits from the highest bit where the values differ: each level counts the candidates' digits
+ * Digits of TW_RADIX_BITS bits from the highest bit where the values differ: each level counts the candidates' digits
  * and keeps those of the digit that holds rank k (2 passes over a, then over far fewer): ~1 ms for 320K extents
  * where Hoare's selection took ~8. */
 static int radix_kth(const double *a, int64_t n, int64_t k, double *buf, double *out) {
-    const uint64_t inf = 0x7ff0000000000000ull, mask = (1u << RADIX_BITS) - 1;
+    const uint64_t inf = 0x7ff0000000000000ull, mask = (1u << TW_RADIX_BITS) - 1;
     uint64_t low = UINT64_MAX, high = 0;
     for (int64_t i = 0; i < n; i++) {
         uint64_t b;
@@ -233,12 +201,12 @@ static int radix_kth(const double *a, int64_t n, int64_t k, double *buf, double 
         *out = a[0];
         return 1;
     }
-    int shift = bit_length(low ^ high) - RADIX_BITS; /* every value has the bits above the top differing bit */
+    int shift = tw_bit_length(low ^ high) - TW_RADIX_BITS; /* every value has the bits above the top differing bit */
     if (shift < 0) shift = 0;
     const double *src = a;
     int64_t m = n;
     for (;;) {
-        int64_t count[1 << RADIX_BITS];
+        int64_t count[1 << TW_RADIX_BITS];
         memset(count, 0, sizeof count);
         for (int64_t i = 0; i < m; i++) {
             uint64_t b;
@@ -263,7 +231,7 @@ static int radix_kth(const double *a, int64_t n, int64_t k, double *buf, double 
             *out = kth_smallest(buf, m, k);
             return 1;
         }
-        shift = shift > RADIX_BITS ? shift - RADIX_BITS : 0;
+        shift = shift > TW_RADIX_BITS ? shift - TW_RADIX_BITS : 0;
     }
 }
 
@@ -538,8 +506,8 @@ static int grid(const double *lo, const double *hi, int64_t n, double cell, cons
             if ((int64_t)b[k] + 1 > dims[k]) dims[k] = (int64_t)b[k] + 1;
         }
     }
-    int fb = bit_length((uint64_t)n);
-    int cb = bit_length((uint64_t)dims[0]) + bit_length((uint64_t)dims[1]) + bit_length((uint64_t)dims[2]);
+    int fb = tw_bit_length((uint64_t)n);
+    int cb = tw_bit_length((uint64_t)dims[0]) + tw_bit_length((uint64_t)dims[1]) + tw_bit_length((uint64_t)dims[2]);
     if (fb + cb > 63) return 3;
     int64_t m = (int64_t)total_cells, t = 0;
     uint64_t *e = (uint64_t *)malloc(sizeof(uint64_t) * (size_t)(m > 0 ? m : 1));
@@ -560,7 +528,7 @@ static int grid(const double *lo, const double *hi, int64_t n, double cell, cons
     }
     /* the entries were written face by face: in ascending order of their low fb bits, so only the cell bits are
      * sorted (stable: a cell's faces stay ascending) */
-    radix_sort(e, tmp, t, fb, fb + cb);
+    tw_radix_sort(e, tmp, t, fb, fb + cb);
     free(tmp);
     long long pairs = 0;
     for (int64_t s = 0; s < t;) {
@@ -1063,8 +1031,8 @@ static int first_grid_feasible(const CheckFaces *s, const double *lo, const doub
         if (!(q < 1e9)) return 0; /* also NaN: a lattice this fine is never counted densely */
         dims[k] = (int64_t)q + 1;
     }
-    int cb = bit_length((uint64_t)dims[0]) + bit_length((uint64_t)dims[1]) + bit_length((uint64_t)dims[2]);
-    if (bit_length((uint64_t)n) + cb > 63) return 0;
+    int cb = tw_bit_length((uint64_t)dims[0]) + tw_bit_length((uint64_t)dims[1]) + tw_bit_length((uint64_t)dims[2]);
+    if (tw_bit_length((uint64_t)n) + cb > 63) return 0;
     if ((double)dims[0] * (double)dims[1] * (double)dims[2] > (double)MAX_DENSE_CELLS) return 0;
     GridCount *g = (GridCount *)calloc(1, sizeof(GridCount));
     if (!g) return -1;

@@ -276,7 +276,7 @@ int tw_manifold_defect(const int32_t *faces, size_t nf, size_t nv, int closed, i
         uint64_t forward = tail * (uint64_t)nv + head, backward = head * (uint64_t)nv + tail;
         packed[i] = ((forward < backward ? forward : backward) << 1) | (forward > backward);
     }
-    tw_radix_sort(packed, tmp, (int64_t)m, tw_bit_length((uint64_t)nv * nv) + 1);
+    tw_radix_sort(packed, tmp, (int64_t)m, 0, tw_bit_length((uint64_t)nv * nv) + 1);
     for (size_t i = 1; i < m && !*defect; i++)
         if (packed[i] == packed[i - 1]) *defect = 2;
     if (!*defect && closed) {

@@ -1,4 +1,5 @@
-/* radix.h -- integer helpers shared by delaunay.c and marching.c (header-only: each file gets its own static copy). */
+/* radix.h -- integer helpers shared by delaunay.c, marching.c and intersect.c (header-only: each file gets its own
+ * static copy). */
 #ifndef TETWEAVE_RADIX_H
 #define TETWEAVE_RADIX_H
 
@@ -17,13 +18,14 @@ static inline int tw_bit_length(uint64_t v) {
     return b;
 }
 
-/* Sort a[0..m) ascending by its low `bits` bits (values below 2^bits); tmp: scratch of m items. Stable LSD radix
- * sort; the 16 KB count table lives on the stack. */
-static inline void tw_radix_sort(uint64_t *a, uint64_t *tmp, int64_t m, int bits) {
+/* Sort a[0..m) ascending by its low `bits` bits (values below 2^bits) when a is already in ascending order of its
+ * low `sorted` bits (0: not at all): a stable LSD radix sort by bits sorted .. bits - 1; tmp: scratch of m items;
+ * the 16 KB count table lives on the stack. */
+static inline void tw_radix_sort(uint64_t *a, uint64_t *tmp, int64_t m, int sorted, int bits) {
     int64_t count[1 << TW_RADIX_BITS];
     uint64_t *src = a, *dst = tmp;
     const uint64_t mask = (1u << TW_RADIX_BITS) - 1;
-    for (int shift = 0; shift < bits; shift += TW_RADIX_BITS) {
+    for (int shift = sorted; shift < bits; shift += TW_RADIX_BITS) {
         memset(count, 0, sizeof count);
         for (int64_t i = 0; i < m; i++) count[(src[i] >> shift) & mask]++;
         int64_t sum = 0;
